@@ -1,0 +1,135 @@
+"""The ``guardian`` command line: one entry point, one sub-command per job."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def _emit(result: dict, as_json: bool, text: str) -> None:
+    print(json.dumps(result, indent=2, ensure_ascii=False) if as_json else text)
+
+
+def _library(args):
+    from rcis.library import LibrarySettings, build_library, replace_settings
+
+    settings = replace_settings(LibrarySettings(), intention_max_iterations=args.iterations)
+    return build_library(settings=settings, cache_dir=args.cache_dir, use_cache=not args.rebuild,
+                         workers=args.workers)
+
+
+def cmd_rcis_build(args) -> int:
+    t0 = time.perf_counter()
+    lib = _library(args)
+    result = {"sets": {n: s.summary() for n, s in lib.sets.items()},
+              "containment": lib.containment(), "seconds": round(time.perf_counter() - t0, 3)}
+    lines = [f"{n:17s} iterations={s['iterations']:3d} converged={s['converged']!s:5s} "
+             f"pieces={s['pieces']:4d} seconds={s['seconds']:.1f}{' (cache)' if s['from_cache'] else ''}"
+             for n, s in result["sets"].items()]
+    lines += [f"{k}: {v}" for k, v in result["containment"].items()]
+    _emit(result, args.json, "\n".join(lines))
+    checks = [v for k, v in result["containment"].items() if not k.startswith("witness")]
+    return 0 if all(checks) else 1
+
+
+def cmd_rcis_certify(args) -> int:
+    from rcis.certify import falsify
+    from rcis.library import SET_NAMES
+    from rcis.polyhedron import Polyhedron
+
+    lib = _library(args)
+    p = lib.params
+    window = Polyhedron.from_box([-1e3, -1e3, -(p.h_r + 100), -1e3], [1e3, 1e3, p.h_r + 100, 1e3])
+    result = {"sets": {}}
+    for name in SET_NAMES:
+        def progress(done, total, name=name):
+            print(f"[certify {name}] {done}/{total} states", file=sys.stderr, flush=True)
+        rep = falsify(lib.models[name].system, lib.region(name), args.samples, seed=args.seed,
+                      window=window, admissible=lib.admissible(name), progress=progress)
+        result["sets"][name] = rep.as_dict()
+    lines = [f"{n:17s} samples={r['samples']} inputs={r['inputs_checked']} "
+             f"counterexamples={r['counterexamples']} split={r['split_successor_sets']}"
+             for n, r in result["sets"].items()]
+    _emit(result, args.json, "\n".join(lines))
+    return 0 if all(r["counterexamples"] == 0 for r in result["sets"].values()) else 1
+
+
+def cmd_rcis_export(args) -> int:
+    from rcis.library import SET_NAMES, export_set
+
+    if args.name not in SET_NAMES:
+        print(f"guardian rcis export: unknown set {args.name!r}; choose from {', '.join(SET_NAMES)}",
+              file=sys.stderr)
+        return 2
+    data = export_set(_library(args), args.name)
+    Path(args.out).write_text(json.dumps(data))
+    _emit({"name": args.name, "pieces": len(data["pieces"]), "out": str(args.out)}, args.json,
+          f"wrote {args.out} ({len(data['pieces'])} pieces)")
+    return 0
+
+
+def cmd_rcis_plot(args) -> int:
+    from rcis.plot import plot_admissible, plot_slices
+
+    lib = _library(args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [str(plot_slices(lib, out)), str(plot_admissible(lib, out))]
+    _emit({"files": paths}, args.json, "\n".join(paths))
+    return 0
+
+
+def _library_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--iterations", type=int, default=None,
+                   help="inside-out iterations for the aggressive and cautious sets (default 5)")
+    p.add_argument("--cache-dir", type=Path, default=None,
+                   help="where computed sets are cached (default $GUARDIAN_CACHE_DIR or ~/.cache/guardian)")
+    p.add_argument("--rebuild", action="store_true", help="ignore the cache and recompute")
+    p.add_argument("--workers", type=int, default=2, help="processes for the intention sets (default 2)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="guardian", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    rcis = sub.add_parser("rcis", help="robust controlled invariant sets of the overtake scenario")
+    rsub = rcis.add_subparsers(dest="rcis_command", required=True)
+
+    p = rsub.add_parser("build", help="build or load the RCIS library")
+    _library_options(p)
+    p.set_defaults(func=cmd_rcis_build)
+
+    p = rsub.add_parser("certify", help="falsify invariance by sampling states and disturbances")
+    _library_options(p)
+    p.add_argument("--samples", type=int, default=100_000, help="states per set (default 100000)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_rcis_certify)
+
+    p = rsub.add_parser("export", help="write one set as JSON pieces A x <= b")
+    p.add_argument("name", help="bounded_velocity | aggressive | cautious")
+    p.add_argument("--out", type=Path, required=True)
+    _library_options(p)
+    p.set_defaults(func=cmd_rcis_export)
+
+    p = rsub.add_parser("plot", help="PNG slices (Fig. 6.3) and admissible inputs (Fig. 6.4)")
+    p.add_argument("--out", type=Path, required=True)
+    _library_options(p)
+    p.set_defaults(func=cmd_rcis_plot)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "samples", 1) is not None and getattr(args, "samples", 1) < 1:
+        print("guardian: --samples must be at least 1", file=sys.stderr)
+        return 2
+    if getattr(args, "iterations", None) is not None and args.iterations < 0:
+        print("guardian: --iterations must be >= 0", file=sys.stderr)
+        return 2
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""Admissible inputs ``S(x) = {u in U : f(x, u, W) ⊆ C}`` and the nearest admissible input.
+
+For a PWA system and an invariant union ``C = ∪_i C_i``, at state x with piece j,
+
+    S(x) = ∪_i {u in U : G_i (A_j x + B_j u + c_j) <= g_i - h_W(E_j^T G_i^T) - margin},
+
+a union of convex polygons when u is 2-D (possibly non-convex, Fig. 6.4).
+The rows ``G_i A_j``, ``G_i B_j`` and the constant part are stacked once per
+PWA piece, so a query is one matrix-vector product and one compiled clipping
+pass. The same rows, with a larger margin, are what ``PWASystem.pre`` used,
+so every state of C has an admissible input.
+
+The override keeps the driver's input when admissible; otherwise it changes
+the inputs in a user-set priority (default: throttle, then steering, then
+both), as Section 6.5.2 proposes for non-convex admissible sets.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rcis import _kernels
+from rcis.pwa import RUNTIME_MARGIN, PWASystem
+from rcis.region import Region
+
+BOUNDS_ROUNDING = 1e-9  # an input this close outside U is rounding, larger is a bug
+
+
+@dataclass(frozen=True)
+class OverrideResult:
+    applied: np.ndarray      # the input to apply (always inside U when feasible)
+    overridden: bool         # applied differs from the proposed input
+    feasible: bool           # S(x) was non-empty
+    changed: str             # "none" | the name of the one input changed | "both" | "infeasible"
+
+
+class AdmissibleInputs:
+    """``S(x)`` for one PWA system and one invariant region (inputs must be 2-D)."""
+
+    def __init__(self, system: PWASystem, invariant: Region, margin: float = RUNTIME_MARGIN,
+                 input_names=("throttle", "steering")):
+        if system.n_u != 2:
+            raise ValueError("AdmissibleInputs handles 2-D inputs (polygons)")
+        box = system.input_set._box
+        if box is None:
+            raise ValueError("AdmissibleInputs needs a box input set")
+        self.system = system
+        self.invariant = invariant
+        self.u_lower, self.u_upper = (np.asarray(v, float) for v in box)
+        self.input_names = tuple(input_names)
+        self._rows = [self._stack_rows(j, margin) for j in range(len(system.pieces))]
+
+    def _stack_rows(self, j: int, margin: float):
+        p = self.system.pieces[j]
+        GA, GB, r0, starts = [], [], [], [0]
+        for T in self.invariant.pieces:
+            G, g = self.system._robust_target_rows(p, T, margin)
+            GA.append(G @ p.A)
+            GB.append(G @ p.B)
+            r0.append(g - G @ p.c)
+            starts.append(starts[-1] + G.shape[0])
+        return (np.vstack(GA), np.ascontiguousarray(np.vstack(GB)), np.concatenate(r0),
+                np.asarray(starts, dtype=np.int64))
+
+    def polygons(self, x) -> list[np.ndarray]:
+        """``S(x)`` as convex polygons (vertex arrays, counter-clockwise); [] if empty."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.system.n_x,) or not np.all(np.isfinite(x)):
+            raise ValueError(f"state must be {self.system.n_x} finite numbers, got {x.tolist()}")
+        GA, GB, r0, starts = self._rows[self.system.piece_index(x)]
+        verts, counts = _kernels.clip_box_by_halfplanes(GB, r0 - GA @ x, starts,
+                                                        self.u_lower, self.u_upper)
+        return [verts[p, :counts[p]].copy() for p in np.flatnonzero(counts)]
+
+    def is_admissible(self, x, u, polygons=None) -> bool:
+        polys = self.polygons(x) if polygons is None else polygons
+        return any(_in_polygon(P, np.asarray(u, float)) for P in polys)
+
+    def intervals(self, polygons, axis: int, value: float) -> list[tuple[float, float]]:
+        """Admissible ranges of input ``axis`` with the other input fixed to ``value`` (Fig. 6.5)."""
+        out = []
+        for P in polygons:
+            iv = _line_interval(P, 1 - axis, value)
+            if iv is not None:
+                out.append(iv)
+        return sorted(out)
+
+    def override(self, x, u, priority=(0, 1), polygons=None) -> OverrideResult:
+        """The driver's input if admissible, else the nearest admissible one by priority.
+
+        ``priority`` lists input indices: first change only ``priority[0]``
+        (nearest value on the line through u), then only ``priority[1]``, then
+        both (nearest point, distances scaled by the input ranges).
+        """
+        u = np.asarray(u, dtype=float)
+        if u.shape != (2,) or not np.all(np.isfinite(u)):
+            raise ValueError(f"input must be 2 finite numbers, got {u.tolist()}")
+        if sorted(priority) != [0, 1]:
+            raise ValueError(f"priority must order the inputs 0 and 1, got {priority}")
+        polys = self.polygons(x) if polygons is None else polygons
+        if not polys:
+            return OverrideResult(u.copy(), False, False, "infeasible")
+        if any(_in_polygon(P, u) for P in polys) and self._in_bounds(u):
+            return OverrideResult(u.copy(), False, True, "none")
+        for axis in priority:
+            ranges = self.intervals(polys, axis, u[1 - axis])
+            if ranges:
+                v = u.copy()
+                v[axis] = _nearest_in_intervals(ranges, u[axis])
+                return OverrideResult(self._inside_bounds(v), True, True, self.input_names[axis])
+        scale = self.u_upper - self.u_lower
+        best = min((_nearest_on_polygon(P / scale, u / scale) for P in polys),
+                   key=lambda pt: np.sum((pt - u / scale) ** 2))
+        return OverrideResult(self._inside_bounds(best * scale), True, True, "both")
+
+    def _in_bounds(self, u) -> bool:
+        return bool(np.all(u >= self.u_lower) and np.all(u <= self.u_upper))
+
+    def _inside_bounds(self, u: np.ndarray) -> np.ndarray:
+        """Remove float rounding at the bounds of U; anything larger is an error."""
+        clipped = np.clip(u, self.u_lower, self.u_upper)
+        if np.max(np.abs(clipped - u)) > BOUNDS_ROUNDING:
+            raise ArithmeticError(f"override produced {u.tolist()} outside the input bounds")
+        return clipped
+
+
+def _in_polygon(P: np.ndarray, u: np.ndarray, tol: float = 1e-12) -> bool:
+    if len(P) == 1:
+        return bool(np.all(np.abs(P[0] - u) <= tol))
+    if len(P) == 2:
+        return _dist_to_segment(P[0], P[1], u) <= tol
+    edges = np.roll(P, -1, axis=0) - P
+    rel = u - P
+    cross = edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0]
+    return bool(np.all(cross >= -tol * np.linalg.norm(edges, axis=1)))
+
+
+def _dist_to_segment(a, b, u) -> float:
+    d = b - a
+    t = 0.0 if not np.any(d) else np.clip(np.dot(u - a, d) / np.dot(d, d), 0.0, 1.0)
+    return float(np.linalg.norm(a + t * d - u))
+
+
+def _line_interval(P: np.ndarray, fixed_axis: int, value: float):
+    """Range of the free coordinate on ``P ∩ {u[fixed_axis] = value}``, or None."""
+    free = 1 - fixed_axis
+    c = P[:, fixed_axis]
+    if value < c.min() or value > c.max():
+        return None
+    pts = list(P[c == value, free])
+    Q = np.roll(P, -1, axis=0)
+    cq = Q[:, fixed_axis]
+    cross = (c - value) * (cq - value) < 0
+    t = (value - c[cross]) / (cq[cross] - c[cross])
+    pts.extend(P[cross, free] + t * (Q[cross, free] - P[cross, free]))
+    if not pts:
+        return None
+    return (float(min(pts)), float(max(pts)))
+
+
+def _nearest_in_intervals(ranges, value: float) -> float:
+    best = None
+    for lo, hi in ranges:
+        cand = min(max(value, lo), hi)
+        if best is None or abs(cand - value) < abs(best - value):
+            best = cand
+    return best
+
+
+def _nearest_on_polygon(P: np.ndarray, u: np.ndarray) -> np.ndarray:
+    if _in_polygon(P, u):
+        return u.copy()
+    Q = np.roll(P, -1, axis=0)
+    d = Q - P
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.where(dd > 0, np.einsum("ij,ij->i", u - P, d) / np.where(dd > 0, dd, 1.0), 0.0)
+    pts = P + np.clip(t, 0.0, 1.0)[:, None] * d
+    return pts[np.argmin(np.sum((pts - u) ** 2, axis=1))]

@@ -1,0 +1,152 @@
+"""A falsifier for robust controlled invariance (2.9).
+
+It samples states of each piece of C — interior points (hit-and-run), boundary
+points (ends of random chords) and vertices (LP optima of random costs) —,
+computes ``S(x)`` at each, and checks:
+
+1. ``S(x)`` is non-empty;
+2. for several admissible inputs (polygon vertices, centroids, random points),
+   every successor under every vertex of the disturbance set (which includes
+   the intention's external-input variability) lies in C.
+
+The successors come from ``PWASystem.step`` semantics, independent of the
+projection code that built C. When the vertex successors all lie in one convex
+piece, the whole successor polytope does; when they lie in C but in different
+pieces, the state is counted as ``split`` (not a counterexample, not a proof).
+Unbounded coordinates are sampled inside ``window``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rcis.admissible import AdmissibleInputs
+from rcis.lp import InequalityLP
+from rcis.polyhedron import Polyhedron
+from rcis.pwa import PWASystem
+from rcis.region import Region
+
+MEMBERSHIP_TOL = 1e-9  # float evaluation of A x <= b; the sets keep margins of 1e-6
+
+
+@dataclass
+class Counterexample:
+    state: list
+    input: list | None
+    successor: list | None
+    reason: str
+
+
+@dataclass
+class FalsifierReport:
+    samples: int = 0
+    inputs_checked: int = 0
+    split: int = 0
+    counterexamples: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"samples": self.samples, "inputs_checked": self.inputs_checked,
+                "split_successor_sets": self.split, "counterexamples": len(self.counterexamples),
+                "first_counterexamples": [c.__dict__ for c in self.counterexamples[:5]]}
+
+
+class _PieceSampler:
+    """Hit-and-run, chord ends and LP vertices of one piece, clipped to a window."""
+
+    def __init__(self, P: Polyhedron, window: Polyhedron, rng):
+        self.P = P.intersect(window).minimal()
+        ball = self.P.chebyshev_ball()
+        if ball.radius <= 0:
+            raise ValueError("piece has no interior inside the sampling window")
+        self.x = ball.center
+        self.rng = rng
+        self._lp = InequalityLP(self.P.A, self.P.b)
+
+    def _chord(self, d):
+        Ad = self.P.A @ d
+        slack = self.P.b - self.P.A @ self.x
+        with np.errstate(divide="ignore"):
+            t = slack / Ad
+        hi = np.min(t[Ad > 1e-14], initial=np.inf)
+        lo = np.max(t[Ad < -1e-14], initial=-np.inf)
+        return max(lo, -1e6), min(hi, 1e6)
+
+    def interior(self):
+        d = self.rng.normal(size=self.x.size)
+        d /= np.linalg.norm(d)
+        lo, hi = self._chord(d)
+        self.x = self.x + self.rng.uniform(lo, hi) * d
+        return self.x.copy()
+
+    def boundary(self):
+        d = self.rng.normal(size=self.x.size)
+        d /= np.linalg.norm(d)
+        lo, hi = self._chord(d)
+        return self.x + hi * d
+
+    def vertex(self):
+        res = self._lp.maximize(self.rng.normal(size=self.x.size))
+        return res.x if res.status == "optimal" else self.interior()
+
+
+def _candidate_inputs(polygons, rng, count: int):
+    P = polygons[rng.integers(len(polygons))]
+    picks = [P.mean(axis=0), P[rng.integers(len(P))]]
+    while len(picks) < count:
+        Q = polygons[rng.integers(len(polygons))]
+        w = rng.dirichlet(np.ones(len(Q)))
+        picks.append(w @ Q)
+    return picks[:count]
+
+
+def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
+            window: Polyhedron | None = None, inputs_per_state: int = 3,
+            admissible: AdmissibleInputs | None = None, progress=None) -> FalsifierReport:
+    """Search for states of ``invariant`` that are not robustly controlled invariant."""
+    rng = np.random.default_rng(seed)
+    adm = admissible or AdmissibleInputs(system, invariant)
+    if window is None:
+        window = Polyhedron.from_box(np.full(system.n_x, -1e3), np.full(system.n_x, 1e3))
+    samplers = [_PieceSampler(P, window, rng) for P in invariant.pieces]
+    W_vertices = [p.W.generators()[0] for p in system.pieces]
+    report = FalsifierReport()
+    kinds = ("interior", "boundary", "vertex")
+    for k in range(samples):
+        sampler = samplers[k % len(samplers)]
+        kind = kinds[rng.choice(3, p=[0.5, 0.35, 0.15])]
+        x = getattr(sampler, kind)()
+        report.samples += 1
+        if progress and (k + 1) % max(1, samples // 20) == 0:
+            progress(k + 1, samples)
+        if not invariant.contains(x, MEMBERSHIP_TOL):
+            continue  # a chord end rounded outside; the sampler only aims at C
+        polygons = adm.polygons(x)
+        if not polygons:
+            report.counterexamples.append(Counterexample(x.tolist(), None, None, "S(x) is empty"))
+            continue
+        j = system.piece_index(x)
+        piece = system.pieces[j]
+        for u in _candidate_inputs(polygons, rng, inputs_per_state):
+            report.inputs_checked += 1
+            successors = piece.image(x, u) + W_vertices[j] @ piece.E.T
+            owners = _common_piece(invariant, successors)
+            if owners is not None:
+                continue
+            inside = invariant.contains(successors, MEMBERSHIP_TOL)
+            if not np.all(inside):
+                bad = successors[np.flatnonzero(~inside)[0]]
+                report.counterexamples.append(
+                    Counterexample(x.tolist(), u.tolist(), bad.tolist(), "successor leaves C"))
+                break
+            report.split += 1
+    return report
+
+
+def _common_piece(region: Region, points: np.ndarray):
+    A, b, starts = region.stacked()
+    viol = points @ A.T - b  # (points, rows)
+    bad_rows = np.any(viol > MEMBERSHIP_TOL, axis=0).astype(np.int64)
+    bad_per_piece = np.add.reduceat(bad_rows, starts[:-1]) if len(bad_rows) else np.zeros(0)
+    hits = np.flatnonzero(bad_per_piece == 0)
+    return int(hits[0]) if hits.size else None

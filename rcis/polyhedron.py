@@ -1,0 +1,319 @@
+"""Convex polyhedra in H-representation, ``P = {x : A x <= b}``, possibly unbounded.
+
+Every operation that the invariant-set algorithms need lives here, named after
+the math: intersection, affine preimage, robust tightening (the Pontryagin
+difference ``P ⊖ E W``), projection by Fourier-Motzkin elimination, redundancy
+removal, Chebyshev ball and containment.
+
+Floating point policy: whenever rounding could make a computed set larger than
+the exact one, we move the error inwards (derived right-hand sides are lowered
+by a few ulps of their magnitude). Redundancy removal drops a row only when an
+LP shows it is implied to within ``REDUNDANCY_TOL``, far below the margins the
+set computations keep (``rcis.pwa.PRE_MARGIN``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rcis.lp import InequalityLP
+
+ROW_NORM_EPS = 1e-12     # a row with a smaller norm is the constant constraint 0 <= b
+REDUNDANCY_TOL = 1e-10   # a row is implied if max a_i x over the others <= b_i + this
+CHEBYSHEV_CAP = 1e4      # radius cap so that unbounded polyhedra get a finite ball
+FM_ROUNDING = 4e-15      # relative lowering of Fourier-Motzkin right-hand sides
+
+
+@dataclass(frozen=True)
+class ChebyshevBall:
+    center: np.ndarray | None
+    radius: float  # < 0 when the polyhedron is empty, 0 when it has no interior
+
+
+class Polyhedron:
+    """``{x in R^n : A x <= b}`` with unit-norm rows.
+
+    Construction normalises rows; a zero row with negative right-hand side
+    makes the polyhedron empty (kept as the single row ``0 x <= -1``).
+    """
+
+    __slots__ = ("A", "b", "_box", "_bbox")
+
+    def __init__(self, A, b):
+        A = np.atleast_2d(np.asarray(A, dtype=float))
+        b = np.asarray(b, dtype=float).reshape(-1)
+        if A.shape[0] != b.shape[0]:
+            raise ValueError(f"A has {A.shape[0]} rows but b has {b.shape[0]} entries")
+        if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b) | (b == np.inf))):
+            raise ValueError("Polyhedron: A must be finite and b finite or +inf")
+        keep = b < np.inf
+        A, b = A[keep], b[keep]
+        norms = np.linalg.norm(A, axis=1)
+        zero = norms < ROW_NORM_EPS
+        if np.any(b[zero] < 0):
+            A, b = np.zeros((1, A.shape[1])), np.array([-1.0])
+        else:
+            A, b = A[~zero] / norms[~zero, None], b[~zero] / norms[~zero]
+        self.A = A
+        self.b = b
+        self._box = None
+        self._bbox = None
+
+    # ---- constructors -------------------------------------------------
+    @classmethod
+    def from_box(cls, lower, upper) -> "Polyhedron":
+        """``{x : lower <= x <= upper}``; infinite bounds are left out."""
+        lower = np.asarray(lower, dtype=float)
+        upper = np.asarray(upper, dtype=float)
+        if lower.shape != upper.shape or lower.ndim != 1:
+            raise ValueError("from_box: lower and upper must be 1-D of equal length")
+        if np.any(np.isnan(lower)) or np.any(np.isnan(upper)):
+            raise ValueError("from_box: NaN bound")
+        n = lower.size
+        eye = np.eye(n)
+        A = np.vstack([eye, -eye])
+        b = np.concatenate([upper, -lower])
+        P = cls(A, b)
+        P._box = (lower.copy(), upper.copy())
+        return P
+
+    @classmethod
+    def universe(cls, n: int) -> "Polyhedron":
+        return cls(np.zeros((0, n)), np.zeros(0))
+
+    @property
+    def dim(self) -> int:
+        return self.A.shape[1]
+
+    @property
+    def n_constraints(self) -> int:
+        return self.A.shape[0]
+
+    def __repr__(self) -> str:
+        return f"Polyhedron(dim={self.dim}, constraints={self.n_constraints})"
+
+    # ---- membership ---------------------------------------------------
+    def contains(self, X, tol: float = 1e-9):
+        """Membership of one point (1-D) or many points (rows of a 2-D array)."""
+        X = np.asarray(X, dtype=float)
+        single = X.ndim == 1
+        X2 = np.atleast_2d(X)
+        if X2.shape[1] != self.dim:
+            raise ValueError(f"points have dimension {X2.shape[1]}, polyhedron has {self.dim}")
+        inside = np.all(X2 @ self.A.T <= self.b + tol, axis=1)
+        return bool(inside[0]) if single else inside
+
+    # ---- LP-based queries ---------------------------------------------
+    def support(self, direction) -> float:
+        """``h_P(d) = max_{x in P} d^T x`` (+inf if unbounded, -inf if empty)."""
+        d = np.asarray(direction, dtype=float)
+        if self._box is not None:
+            lo, hi = self._box
+            return float(np.sum(np.where(d > 0, d * hi, np.where(d < 0, d * lo, 0.0))))
+        return InequalityLP(self.A, self.b).maximize(d).value
+
+    def support_many(self, directions) -> np.ndarray:
+        """Support function for each row of ``directions`` (one model, many costs)."""
+        D = np.atleast_2d(np.asarray(directions, dtype=float))
+        if self._box is not None:
+            lo, hi = self._box
+            with np.errstate(invalid="ignore"):
+                terms = np.where(D > 0, D * hi, np.where(D < 0, D * lo, 0.0))
+            return terms.sum(axis=1)
+        lp = InequalityLP(self.A, self.b)
+        return np.array([lp.maximize(d).value for d in D])
+
+    def chebyshev_ball(self, radius_cap: float = CHEBYSHEV_CAP) -> ChebyshevBall:
+        """Largest ball ``{c + r u : |u| <= 1}`` inside P (rows are unit norm)."""
+        m, n = self.A.shape
+        A = np.hstack([self.A, np.ones((m, 1))])
+        upper = np.full(n + 1, np.inf)
+        upper[n] = radius_cap
+        res = InequalityLP(A, self.b, upper=upper).maximize(np.eye(n + 1)[n])
+        if res.status != "optimal":
+            return ChebyshevBall(None, -1.0)
+        return ChebyshevBall(res.x[:n], float(res.x[n]))
+
+    def is_empty(self) -> bool:
+        return self.chebyshev_ball().radius < -1e-9
+
+    def is_fulldim(self, eps: float = 1e-7) -> bool:
+        return self.chebyshev_ball().radius > eps
+
+    def contains_polyhedron(self, Q: "Polyhedron", tol: float = 1e-7) -> bool:
+        """``Q ⊆ self``: every row of self bounds Q (empty Q is contained)."""
+        if self.n_constraints == 0:
+            return True
+        if Q._bbox is not None and np.any(Q._bbox[0] > Q._bbox[1]):
+            return True  # Q is empty
+        lp = InequalityLP(Q.A, Q.b)
+        for a, bi in zip(self.A, self.b):
+            res = lp.maximize(a)
+            if res.status == "infeasible":
+                return True
+            if res.value > bi + tol:
+                return False
+        return True
+
+    def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lower, upper)`` per coordinate (infinite where unbounded); cached."""
+        if self._bbox is None:
+            eye = np.eye(self.dim)
+            values = self.support_many(np.vstack([eye, -eye]))
+            self._bbox = (-values[self.dim:], values[:self.dim])
+        return self._bbox
+
+    def may_intersect(self, Q: "Polyhedron", tol: float = 1e-7) -> bool:
+        """False when the bounding boxes are apart (then P ∩ Q is empty)."""
+        lo1, hi1 = self.bounding_box()
+        lo2, hi2 = Q.bounding_box()
+        return bool(np.all(lo1 <= hi2 + tol) and np.all(lo2 <= hi1 + tol))
+
+    # ---- set operations ----------------------------------------------
+    def intersect(self, Q: "Polyhedron") -> "Polyhedron":
+        if Q.dim != self.dim:
+            raise ValueError(f"intersect: dimensions {self.dim} and {Q.dim}")
+        return Polyhedron(np.vstack([self.A, Q.A]), np.concatenate([self.b, Q.b]))
+
+    def preimage(self, M, t=None) -> "Polyhedron":
+        """``{z : M z + t in P}``: rows ``A M z <= b - A t``."""
+        M = np.atleast_2d(np.asarray(M, dtype=float))
+        t = np.zeros(self.dim) if t is None else np.asarray(t, dtype=float)
+        return Polyhedron(self.A @ M, self.b - self.A @ t)
+
+    def robust_tighten(self, E, W: "Polyhedron") -> "Polyhedron":
+        """Pontryagin difference ``P ⊖ E W = {z : z + E w in P for all w in W}``.
+
+        Row i becomes ``a_i z <= b_i - h_W(E^T a_i)``.
+        """
+        E = np.atleast_2d(np.asarray(E, dtype=float))
+        shift = W.support_many(self.A @ E)
+        if np.any(~np.isfinite(shift)):
+            raise ValueError("robust_tighten: the disturbance set is unbounded along a constraint")
+        return Polyhedron(self.A, self.b - shift)
+
+    def shrink(self, margin: float) -> "Polyhedron":
+        """``{x : A x <= b - margin}`` (rows have unit norm: a margin-ball erosion)."""
+        return Polyhedron(self.A, self.b - margin)
+
+    def slice(self, dims, values) -> "Polyhedron":
+        """Fix coordinates ``dims`` to ``values``; the result lives in the others."""
+        dims = np.atleast_1d(dims)
+        keep = np.setdiff1d(np.arange(self.dim), dims)
+        b = self.b - self.A[:, dims] @ np.asarray(values, dtype=float)
+        return Polyhedron(self.A[:, keep], b)
+
+    # ---- redundancy and projection -----------------------------------
+    def minimal(self) -> "Polyhedron":
+        """Remove redundant rows (duplicates, box-implied rows, then one LP per row)."""
+        A, b = _dedupe(self.A, self.b)
+        keep = _not_implied_by_axis_bounds(A, b)
+        A, b = A[keep], b[keep]
+        m = A.shape[0]
+        if m <= 1:
+            return Polyhedron(A, b)
+        lp = InequalityLP(A, b)
+        kept = np.ones(m, dtype=bool)
+        for i in range(m):
+            lp.set_row_bound(i, b[i] + 1.0)
+            res = lp.maximize(A[i])
+            if res.status == "infeasible":
+                return Polyhedron(np.zeros((1, self.dim)), np.array([-1.0]))
+            if res.status == "optimal" and res.value <= b[i] + REDUNDANCY_TOL:
+                lp.relax_row(i)
+                kept[i] = False
+            else:
+                lp.restore_row(i)
+        return Polyhedron(A[kept], b[kept])
+
+    def eliminate(self, dims) -> "Polyhedron":
+        """Project out coordinates ``dims`` (Fourier-Motzkin, pruning after each).
+
+        The result lives in the remaining coordinates, in their original order.
+        """
+        dims = sorted(np.atleast_1d(dims).tolist(), reverse=True)
+        P = self.minimal()
+        for k in dims:
+            P = _fourier_motzkin(P.A, P.b, k).minimal()
+        return P
+
+    def project(self, keep) -> "Polyhedron":
+        """Orthogonal projection onto coordinates ``keep`` (in increasing order)."""
+        drop = np.setdiff1d(np.arange(self.dim), np.atleast_1d(keep))
+        return self.eliminate(drop)
+
+    # ---- V-representation --------------------------------------------
+    def generators(self):
+        """Vertices and rays through pycddlib (float), checked against the H-rep.
+
+        Returns ``(vertices, rays)`` as arrays; lines are returned as pairs of
+        opposite rays. Never calls cddlib's canonicalize, which can abort the
+        process on float input (cddlib before PR #77 frees unset pointers when
+        its linearity LP fails).
+        """
+        import cdd
+
+        if self.n_constraints == 0:
+            eye = np.eye(self.dim)
+            return np.zeros((1, self.dim)), np.vstack([eye, -eye])
+        mat = cdd.matrix_from_array(np.hstack([self.b[:, None], -self.A]).tolist(),
+                                    rep_type=cdd.RepType.INEQUALITY)
+        gens = cdd.copy_generators(cdd.polyhedron_from_matrix(mat))
+        G = np.array(gens.array, dtype=float).reshape(-1, self.dim + 1)
+        lines = sorted(gens.lin_set)
+        is_vertex = G[:, 0] > 0.5
+        vertices = G[is_vertex, 1:] / G[is_vertex, :1]
+        rays = G[~is_vertex, 1:]
+        if lines:
+            rays = np.vstack([rays, -G[lines, 1:]])
+        if vertices.size and not np.all(self.contains(vertices, tol=1e-6)):
+            raise ArithmeticError("cddlib returned a vertex outside the polyhedron")
+        return vertices, rays
+
+
+def _dedupe(A: np.ndarray, b: np.ndarray):
+    """Keep one row per direction (the tightest)."""
+    if A.shape[0] <= 1:
+        return A, b
+    key = np.round(A, 10)
+    order = np.lexsort(np.vstack([b, key.T[::-1]]))
+    key, A, b = key[order], A[order], b[order]
+    first = np.ones(A.shape[0], dtype=bool)
+    first[1:] = np.any(key[1:] != key[:-1], axis=1)
+    return A[first], b[first]
+
+
+def _not_implied_by_axis_bounds(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mask of rows that the axis-aligned rows alone do not imply."""
+    m, n = A.shape
+    axis = np.sum(np.abs(A) > ROW_NORM_EPS, axis=1) == 1
+    upper = np.full(n, np.inf)
+    lower = np.full(n, -np.inf)
+    for i in np.flatnonzero(axis):
+        j = int(np.flatnonzero(np.abs(A[i]) > ROW_NORM_EPS)[0])
+        if A[i, j] > 0:
+            upper[j] = min(upper[j], b[i] / A[i, j])
+        else:
+            lower[j] = max(lower[j], b[i] / A[i, j])
+    with np.errstate(invalid="ignore"):
+        terms = np.where(A > 0, A * upper, np.where(A < 0, A * lower, 0.0))
+    box_max = terms.sum(axis=1)
+    implied = (~axis) & (box_max <= b + REDUNDANCY_TOL)
+    return ~implied
+
+
+def _fourier_motzkin(A: np.ndarray, b: np.ndarray, k: int) -> Polyhedron:
+    """Eliminate coordinate k from ``A x <= b`` (no pruning)."""
+    col = A[:, k]
+    pos, neg = col > ROW_NORM_EPS, col < -ROW_NORM_EPS
+    zero = ~(pos | neg)
+    Ap, bp = A[pos] / col[pos, None], b[pos] / col[pos]
+    An, bn = A[neg] / -col[neg, None], b[neg] / -col[neg]
+    comb_A = (Ap[:, None, :] + An[None, :, :]).reshape(-1, A.shape[1])
+    comb_b = (bp[:, None] + bn[None, :]).reshape(-1)
+    scale = (np.abs(bp)[:, None] + np.abs(bn)[None, :]).reshape(-1) + 1.0
+    comb_b = comb_b - FM_ROUNDING * scale
+    newA = np.vstack([A[zero], comb_A])
+    newb = np.concatenate([b[zero], comb_b])
+    return Polyhedron(np.delete(newA, k, axis=1), newb)

@@ -1,0 +1,137 @@
+"""The overtake RCIS library: inclusions, invariance, supervisors, cache and export."""
+import json
+
+import numpy as np
+import pytest
+
+from intention.models import left_lane
+from rcis.certify import falsify
+from rcis.library import SET_NAMES, build_library, export_set
+from rcis.polyhedron import Polyhedron
+from rcis.region import Region
+
+FIG64 = np.array([25.0, -0.297, 16.52, 20.0])
+
+
+def window(p):
+    return Polyhedron.from_box([-1e3, -1e3, -(p.h_r + 100), -1e3], [1e3, 1e3, p.h_r + 100, 1e3])
+
+
+def test_bounded_velocity_converges_in_twelve_iterations(library):
+    s = library.sets["bounded_velocity"]
+    assert s.converged and s.iterations == 12
+
+
+def test_inclusions_of_proposition_22(library):
+    c = library.containment()
+    assert c["C_left ⊆ C_bnd"] and c["C_bnd ⊆ C_a"] and c["C_bnd ⊆ C_c"]
+    assert c["C_c ⊄ C_bnd (strictly larger)"]
+    w = np.array(c["witness in C_c \\ C_bnd"])
+    assert library.region("cautious").contains(w) and not library.region("bounded_velocity").contains(w)
+
+
+@pytest.mark.parametrize("name", SET_NAMES)
+def test_falsifier_finds_no_counterexample(library, name):
+    rep = falsify(library.models[name].system, library.region(name), 1500, seed=7,
+                  window=window(library.params), admissible=library.admissible(name))
+    assert rep.samples == 1500 and rep.counterexamples == []
+
+
+def test_falsifier_catches_an_unsafe_piece(library):
+    """Add right-lane states with 10-12 m headway at high closing speed: not invariant."""
+    p = library.params
+    bad = Polyhedron.from_box([34.0, -0.9, 10.0, 0.0], [36.0, -0.5, 12.0, 5.0])
+    region = Region(library.region("bounded_velocity").pieces + [bad], 4)
+    from rcis.admissible import AdmissibleInputs
+    system = library.models["bounded_velocity"].system
+    rep = falsify(system, region, 600, seed=1, window=window(p), admissible=AdmissibleInputs(system, region))
+    assert len(rep.counterexamples) > 0
+
+
+def test_admissible_inputs_at_fig_6_4_differ_between_models(library):
+    polys = {n: library.admissible(n).polygons(FIG64) for n in SET_NAMES}
+    assert polys["bounded_velocity"] == []  # the state is outside C_bnd: no safe input under I
+    assert polys["aggressive"] and polys["cautious"]
+    rng = np.random.default_rng(0)
+    U = rng.uniform([-3, -1.8], [3, 1.8], size=(4000, 2))
+    ok = {n: np.array([library.admissible(n).is_admissible(FIG64, u, polys[n]) for u in U])
+          for n in ("aggressive", "cautious")}
+    assert ok["aggressive"].any() and ok["cautious"].any()
+    assert (ok["aggressive"] != ok["cautious"]).any()
+
+
+def test_every_admissible_input_keeps_the_state_in_the_set(library):
+    """At Fig. 6.4's state, inputs in S_c(x) keep every successor in C_c; others leave for some w."""
+    adm = library.admissible("cautious")
+    system = library.models["cautious"].system
+    region = library.region("cautious")
+    polys = adm.polygons(FIG64)
+    rng = np.random.default_rng(2)
+    for u in rng.uniform([-3, -1.8], [3, 1.8], size=(400, 2)):
+        if adm.is_admissible(FIG64, u, polys):
+            assert region.contains(system.successor_vertices(FIG64, u)).all()
+
+
+def test_override_priority_and_bounds(library):
+    adm = library.admissible("cautious")
+    polys = adm.polygons(FIG64)
+    rng = np.random.default_rng(3)
+    for u in np.vstack([rng.uniform([-6, -4], [6, 4], size=(300, 2)), [[100.0, -100.0]]]):
+        r = adm.override(FIG64, u, polygons=polys)
+        assert r.feasible
+        assert np.all(r.applied >= [-3, -1.8]) and np.all(r.applied <= [3, 1.8])
+        assert adm.is_admissible(FIG64, r.applied, polys)
+        if not r.overridden:
+            assert np.array_equal(r.applied, u)
+        elif r.changed == "throttle":
+            assert r.applied[1] == u[1]
+        elif r.changed == "steering":
+            assert r.applied[0] == u[0]
+    # steering first when asked
+    r = adm.override(FIG64, [3.0, -1.8], priority=(1, 0), polygons=polys)
+    assert r.changed in ("steering", "throttle", "both", "none")
+    with pytest.raises(ValueError, match="finite"):
+        adm.override(FIG64, [np.nan, 0.0])
+    with pytest.raises(ValueError, match="state"):
+        adm.polygons([25.0, 0.0, 16.0])
+
+
+def test_infeasible_state_is_reported_not_faked(library):
+    adm = library.admissible("bounded_velocity")
+    r = adm.override(FIG64, [0.0, 0.0])
+    assert not r.feasible and r.changed == "infeasible"
+
+
+def test_cache_round_trip_and_refusal(library, cache_dir, capsys):
+    again = build_library(cache_dir=cache_dir, quiet=True)
+    assert all(s.from_cache for s in again.sets.values())
+    for n in SET_NAMES:
+        X = np.random.default_rng(0).uniform([16, -0.9, -80, 0], [36, 2.7, 80, 33.5], size=(2000, 4))
+        assert np.array_equal(again.region(n).contains(X), library.region(n).contains(X))
+    # tamper with one entry: it must be refused (and rebuilt), never used
+    import numpy as _np
+    from rcis.cache import StaleCacheError, entry_path, load_region
+    s = library.sets["bounded_velocity"]
+    path = entry_path(cache_dir, "bounded_velocity", s.payload)
+    with _np.load(path) as z:
+        data = {k: z[k] for k in z.files}
+    data["b0"] = data["b0"] + 1.0
+    _np.savez_compressed(path, **data)
+    with pytest.raises(StaleCacheError, match="checksum"):
+        load_region(path, s.payload)
+    foreign = dict(s.payload, params=dict(s.payload["params"], h_min=12.0))
+    with pytest.raises(StaleCacheError, match="h_min"):
+        load_region(path, foreign)
+    rebuilt = build_library(cache_dir=cache_dir, quiet=True)
+    assert not rebuilt.sets["bounded_velocity"].from_cache
+    assert "refusing cache entry" in capsys.readouterr().err
+
+
+def test_export_json_describes_the_same_set(library, tmp_path):
+    data = json.loads(json.dumps(export_set(library, "cautious")))
+    assert data["state"] == ["v_ex", "y_e", "h", "v_Lx"]
+    assert data["params"]["h_min"] == 10.0
+    X = np.random.default_rng(5).uniform([16, -0.9, -80, 0], [36, 2.7, 80, 33.5], size=(3000, 4))
+    from_json = np.any([np.all(X @ np.array(pc["A"]).T <= np.array(pc["b"]) + 1e-9, axis=1)
+                        for pc in data["pieces"]], axis=0)
+    assert np.array_equal(from_json, library.region("cautious").contains(X))

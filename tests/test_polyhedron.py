@@ -1,0 +1,104 @@
+import numpy as np
+import pytest
+
+from rcis.lp import InequalityLP
+from rcis.polyhedron import Polyhedron
+
+
+def random_polytope(rng, n, m):
+    A = rng.normal(size=(m, n))
+    return Polyhedron(A, np.abs(rng.normal(size=m)) + 0.5)  # contains a ball around 0
+
+
+def lp_feasible_lift(P, x, keep):
+    """Independent oracle: is there z with z[keep] = x and z in P?"""
+    n = P.dim
+    free = np.setdiff1d(np.arange(n), keep)
+    A = P.A[:, free]
+    b = P.b - P.A[:, keep] @ x
+    return InequalityLP(A, b).maximize(np.zeros(free.size)).status != "infeasible"
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_projection_agrees_with_lp_oracle(seed):
+    rng = np.random.default_rng(seed)
+    P = random_polytope(rng, 5, 14).intersect(Polyhedron.from_box(-3 * np.ones(5), 3 * np.ones(5)))
+    keep = np.array([0, 1, 2])
+    Q = P.project(keep)
+    lo, hi = P.bounding_box()
+    X = rng.uniform(lo[keep] - 0.5, hi[keep] + 0.5, size=(300, 3))
+    inside = Q.contains(X, tol=0.0)
+    oracle = np.array([lp_feasible_lift(P, x, keep) for x in X])
+    # The projection may be smaller by rounding, never larger: no point of Q outside the oracle.
+    assert not np.any(inside & ~oracle)
+    # And it is not smaller by anything visible: every oracle point strictly inside Q's slack is in Q.
+    near_boundary = np.max(X @ Q.A.T - Q.b, axis=1) > -1e-6
+    assert not np.any(oracle & ~inside & ~near_boundary)
+
+
+def test_minimal_keeps_the_set_and_drops_redundant_rows():
+    rng = np.random.default_rng(3)
+    box = Polyhedron.from_box(-np.ones(3), np.ones(3))
+    extra = Polyhedron(np.vstack([box.A, box.A * 2.0, [[1, 1, 1]], [[1, 0, 0]]]),
+                       np.concatenate([box.b, box.b * 2.0 + 1.0, [10.0], [5.0]]))
+    M = extra.minimal()
+    assert M.n_constraints == 6
+    X = rng.uniform(-2, 2, size=(2000, 3))
+    assert np.array_equal(M.contains(X), extra.contains(X))
+
+
+def test_chebyshev_ball_of_box_unbounded_and_empty():
+    ball = Polyhedron.from_box([0, 0], [2, 4]).chebyshev_ball()
+    assert ball.radius == pytest.approx(1.0)
+    assert np.allclose(ball.center[0], 1.0)
+    half = Polyhedron([[1.0, 0.0]], [0.0])  # unbounded: radius is capped, not infinite
+    assert half.chebyshev_ball().radius == pytest.approx(1e4)
+    empty = Polyhedron([[1.0], [-1.0]], [0.0, -1.0])  # x <= 0 and x >= 1
+    assert empty.is_empty()
+
+
+def test_robust_tighten_is_the_pontryagin_difference():
+    P = Polyhedron.from_box([0, 0], [10, 10])
+    W = Polyhedron.from_box([-1, -0.5], [1, 0.5])
+    E = np.array([[1.0, 0.0], [0.0, 2.0]])
+    T = P.robust_tighten(E, W)
+    rng = np.random.default_rng(0)
+    Wv, _ = W.generators()
+    for z in rng.uniform(-1, 11, size=(500, 2)):
+        all_in = all(P.contains(z + E @ w, tol=0.0) for w in Wv)
+        assert T.contains(z, tol=1e-12) == all_in
+
+
+def test_contains_polyhedron_and_intersection():
+    big = Polyhedron.from_box([0, 0], [4, 4])
+    small = Polyhedron.from_box([1, 1], [2, 2])
+    assert big.contains_polyhedron(small)
+    assert not small.contains_polyhedron(big)
+    assert big.intersect(Polyhedron.from_box([3, 3], [5, 5])).chebyshev_ball().radius == pytest.approx(0.5)
+
+
+def test_generators_of_an_unbounded_polyhedron():
+    P = Polyhedron([[0.0, -1.0], [-1.0, 0.0]], [0.0, 0.0])  # first quadrant
+    V, R = P.generators()
+    assert np.allclose(V, [[0, 0]])
+    assert len(R) == 2
+
+
+def test_bad_input_is_refused_with_a_message():
+    with pytest.raises(ValueError, match="finite"):
+        Polyhedron([[np.nan, 1.0]], [1.0])
+    with pytest.raises(ValueError, match="rows"):
+        Polyhedron([[1.0, 0.0]], [1.0, 2.0])
+    with pytest.raises(ValueError, match="dimension"):
+        Polyhedron.from_box([0, 0], [1, 1]).contains([1.0, 2.0, 3.0])
+
+
+def test_engine_never_calls_cddlib_canonicalize():
+    """Regression: cddlib's float canonicalize aborted the process (free(): invalid pointer)
+    when its linearity LP failed. The engine removes redundancy with its own LPs instead."""
+    import pathlib
+
+    for path in pathlib.Path(__file__).resolve().parents[1].joinpath("rcis").glob("*.py"):
+        code = "\n".join(line.split("#")[0] for line in path.read_text().splitlines()
+                         if not line.strip().startswith(("#", '"', "'")))
+        assert "canonicalize(" not in code, path
