@@ -81,6 +81,42 @@ def cmd_rcis_plot(args) -> int:
     return 0
 
 
+def cmd_rollout(args) -> int:
+    from envs.drivers import DRIVERS
+    from guardian.rollout import overtake_rollouts
+
+    if args.episodes < 1:
+        print("guardian rollout: --episodes must be at least 1", file=sys.stderr)
+        return 2
+    lib = _library(args)
+    intentions = ("aggressive", "cautious") if args.intention == "all" else (args.intention,)
+    drivers = DRIVERS if args.driver == "all" else (args.driver,)
+    runs = [overtake_rollouts(lib, i, d, args.episodes, args.seed, guardian=not args.no_guardian,
+                              use_intention=not args.no_intention, disturbance=args.disturbance,
+                              max_steps=args.max_steps, horizon=args.horizon,
+                              rerun_path=args.rerun if len(intentions) * len(drivers) == 1 else None)
+            for i in intentions for d in drivers]
+    result = runs[0] if len(runs) == 1 else _combine(runs)
+    text = "\n".join(f"{r['intention']:10s} {r['driver']:8s} episodes={r['episodes']} steps={r['steps']} "
+                     f"violations={r['safety_violations']} overrides={r['override_steps']} "
+                     f"identified={r['identified_fraction']:.2f} "
+                     f"mean_steps_to_identify={r['mean_steps_to_identify_intention']}" for r in runs)
+    _emit(result, args.json, text)
+    return 0
+
+
+def _combine(runs: list) -> dict:
+    keys = ("episodes", "steps", "safety_violations", "override_steps", "failsafe_steps", "wrong_identifications")
+    out = {k: sum(r[k] for r in runs) for k in keys}
+    ident = [(r["mean_steps_to_identify_intention"], r["identified_fraction"] * r["episodes"]) for r in runs
+             if r["mean_steps_to_identify_intention"] is not None]
+    n_ident = sum(n for _, n in ident)
+    out["mean_steps_to_identify_intention"] = sum(m * n for m, n in ident) / n_ident if n_ident else None
+    out["identified_fraction"] = n_ident / out["episodes"]
+    out["runs"] = runs
+    return out
+
+
 def _library_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iterations", type=int, default=None,
                    help="inside-out iterations for the aggressive and cautious sets (default 5)")
@@ -117,6 +153,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True)
     _library_options(p)
     p.set_defaults(func=cmd_rcis_plot)
+    p = sub.add_parser("rollout", help="supervised rollouts of the overtake scenario")
+    p.add_argument("--scenario", choices=["overtake"], default="overtake")
+    p.add_argument("--intention", choices=["aggressive", "cautious", "all"], default="cautious")
+    p.add_argument("--driver", choices=["mpc", "bad", "careful", "random", "all"], default="mpc")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--disturbance", choices=["random", "adversarial"], default="random")
+    p.add_argument("--max-steps", type=int, default=300, help="steps per episode (dt = 0.1 s)")
+    p.add_argument("--horizon", type=int, default=10, help="intention estimator horizon N")
+    p.add_argument("--no-guardian", action="store_true", help="drive without supervision")
+    p.add_argument("--no-intention", action="store_true",
+                   help="keep the guardian but pin it to the bounded-velocity set")
+    p.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
+    _library_options(p)
+    p.set_defaults(func=cmd_rollout)
     return parser
 
 

@@ -91,3 +91,24 @@ def clip_box_by_halfplanes(G, r, starts, lo, hi):
             verts[p, i, 0] = a[i, 0]
             verts[p, i, 1] = a[i, 1]
     return verts, counts
+
+
+@njit(cache=True)
+def first_piece_holding_all(A, b, starts, X, tol):
+    """Index of the first piece that holds every row of X, or -1."""
+    n = A.shape[1]
+    for p in range(starts.shape[0] - 1):
+        inside = True
+        for r in range(starts[p], starts[p + 1]):
+            for k in range(X.shape[0]):
+                s = 0.0
+                for j in range(n):
+                    s += A[r, j] * X[k, j]
+                if s > b[r] + tol:
+                    inside = False
+                    break
+            if not inside:
+                break
+        if inside:
+            return p
+    return -1

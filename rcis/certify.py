@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rcis import _kernels
 from rcis.admissible import AdmissibleInputs
 from rcis.lp import InequalityLP
 from rcis.polyhedron import Polyhedron
@@ -112,15 +113,17 @@ def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
     W_vertices = [p.W.generators()[0] for p in system.pieces]
     report = FalsifierReport()
     kinds = ("interior", "boundary", "vertex")
-    for k in range(samples):
+    k = 0
+    while report.samples < samples:
         sampler = samplers[k % len(samplers)]
+        k += 1
         kind = kinds[rng.choice(3, p=[0.5, 0.35, 0.15])]
         x = getattr(sampler, kind)()
-        report.samples += 1
-        if progress and (k + 1) % max(1, samples // 20) == 0:
-            progress(k + 1, samples)
         if not invariant.contains(x, MEMBERSHIP_TOL):
-            continue  # a chord end rounded outside; the sampler only aims at C
+            continue  # a chord end rounded outside: not a state of C, draw another
+        report.samples += 1
+        if progress and report.samples % max(1, samples // 20) == 0:
+            progress(report.samples, samples)
         polygons = adm.polygons(x)
         if not polygons:
             report.counterexamples.append(Counterexample(x.tolist(), None, None, "S(x) is empty"))
@@ -145,8 +148,5 @@ def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
 
 def _common_piece(region: Region, points: np.ndarray):
     A, b, starts = region.stacked()
-    viol = points @ A.T - b  # (points, rows)
-    bad_rows = np.any(viol > MEMBERSHIP_TOL, axis=0).astype(np.int64)
-    bad_per_piece = np.add.reduceat(bad_rows, starts[:-1]) if len(bad_rows) else np.zeros(0)
-    hits = np.flatnonzero(bad_per_piece == 0)
-    return int(hits[0]) if hits.size else None
+    p = _kernels.first_piece_holding_all(A, b, starts, np.ascontiguousarray(points), MEMBERSHIP_TOL)
+    return None if p < 0 else int(p)

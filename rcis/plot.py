@@ -33,7 +33,7 @@ def slice_polygons(region: Region, v_ex: float, v_Lx: float, h_range=(-80.0, 80.
 
 def _fill(ax, polygons, color, label):
     for i, P in enumerate(polygons):
-        ax.fill(P[:, 0], P[:, 1], color=color, alpha=0.55, lw=0, label=label if i == 0 else None)
+        ax.fill(P[:, 0], P[:, 1], color=color, lw=0, label=label if i == 0 else None)
 
 
 def plot_slices(library, out: Path, slices=((25.0, 20.0), (30.0, 25.0), (20.0, 28.0))) -> Path:

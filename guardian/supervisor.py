@@ -1,0 +1,110 @@
+"""The intention-aware guardian of the overtake scenario (Definition 15, Theorem 4).
+
+At each step the guardian (1) feeds the last transition to the intention
+estimator, (2) picks the supervisor of the valid intentions — ``S_{I_i}`` once
+intention i is the only valid one, the intention-agnostic ``S_I`` (from
+``C_bnd``) otherwise —, (3) computes ``S(x)`` and (4) keeps the driver's input
+if admissible, else applies the nearest admissible input by priority.
+
+Fail-safe (the state is outside the active invariant set, so Theorem 4 no
+longer applies — e.g. the episode started outside ``C_bnd`` or the lead fits no
+model): the record says ``unsafe=True`` and the guardian applies
+
+* the nearest input of ``S(x)`` if it is non-empty (every successor is then
+  back inside the active set, for every disturbance), else
+* ``FAILSAFE_INPUT``: full braking with no lateral motion.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from intention.estimator import IntentionEstimator
+
+FAILSAFE_INPUT = (-3.0, 0.0)  # (a_ex, v_ey): brake fully, hold the lateral position
+AGNOSTIC = "bounded_velocity"
+
+
+@dataclass
+class GuardianRecord:
+    t: int
+    state: list
+    proposed: list
+    applied: list
+    overridden: bool
+    changed: str                 # "none" | "throttle" | "steering" | "both" | "failsafe"
+    active_set: str              # the RCIS whose supervisor is in use
+    valid_intentions: list
+    identified: str | None
+    in_invariant_set: bool       # x in the active set: Theorem 4's guarantee holds
+    unsafe: bool                 # not in_invariant_set: a fail-safe input was applied
+    admissible: list = field(default_factory=list)      # S(x) as polygons [[a, v_ey], ...]
+    throttle_range: list = field(default_factory=list)  # admissible a_ex at the proposed v_ey
+    steering_range: list = field(default_factory=list)  # admissible v_ey at the proposed a_ex
+
+    def as_dict(self, polygons: bool = True) -> dict:
+        d = dict(self.__dict__)
+        if not polygons:
+            d.pop("admissible")
+        return d
+
+
+def _finite_vector(v, n: int, what: str) -> np.ndarray:
+    arr = np.asarray(v, dtype=float)
+    if arr.shape != (n,):
+        raise ValueError(f"{what} must have {n} entries, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{what} has a non-finite entry: {arr.tolist()}")
+    return arr
+
+
+class IntentionAwareGuardian:
+    """Supervises one ego vehicle; ``step(x, u)`` returns the input to apply and a record."""
+
+    def __init__(self, library, use_intention: bool = True, horizon: int = 10, priority=(0, 1)):
+        self.library = library
+        self.use_intention = use_intention
+        self.priority = tuple(priority)
+        candidates = {n: library.models[n] for n in ("aggressive", "cautious")}
+        self.estimator = IntentionEstimator(candidates, horizon=horizon)
+        self.reset()
+
+    def reset(self) -> None:
+        self.estimator.reset()
+        self.t = 0
+        self._last = None  # (x, applied input) of the previous step
+
+    @property
+    def active_set(self) -> str:
+        if self.use_intention and len(self.estimator.valid) == 1:
+            return self.estimator.valid[0]
+        return AGNOSTIC
+
+    def step(self, x, u_driver) -> tuple[np.ndarray, GuardianRecord]:
+        x = _finite_vector(x, 4, "state")
+        u = _finite_vector(u_driver, 2, "driver input")
+        if self._last is not None:
+            self.estimator.update(self._last[0], self._last[1], x)
+        name = self.active_set
+        adm = self.library.admissible(name)
+        polys = adm.polygons(x)
+        inside = self.library.region(name).contains(x)
+        result = adm.override(x, u, self.priority, polys)
+        if result.feasible:
+            applied, changed, overridden = result.applied, result.changed, result.overridden
+        else:
+            applied, changed = np.array(FAILSAFE_INPUT), "failsafe"
+            overridden = not np.array_equal(applied, u)
+        record = GuardianRecord(
+            t=self.t, state=x.tolist(), proposed=u.tolist(), applied=applied.tolist(),
+            overridden=bool(overridden), changed=changed, active_set=name,
+            valid_intentions=list(self.estimator.valid),
+            identified=self.estimator.valid[0] if len(self.estimator.valid) == 1 else None,
+            in_invariant_set=bool(inside), unsafe=not inside,
+            admissible=[P.tolist() for P in polys],
+            throttle_range=adm.intervals(polys, 0, u[1]),
+            steering_range=adm.intervals(polys, 1, u[0]))
+        self._last = (x, applied)
+        self.t += 1
+        return applied, record
