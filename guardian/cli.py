@@ -105,6 +105,24 @@ def cmd_rollout(args) -> int:
     return 0
 
 
+def cmd_serve(args) -> int:
+    from guardian.service import make_server
+
+    lib = _library(args)
+    server = make_server(lib, args.host, args.port)
+    host, port = server.server_address[:2]
+    url = f"http://{host}:{port}"
+    _emit({"url": url}, args.json, f"guardian service on {url} (Ctrl-C stops it)")
+    sys.stdout.flush()
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+    return 0
+
+
 def _combine(runs: list) -> dict:
     keys = ("episodes", "steps", "safety_violations", "override_steps", "failsafe_steps", "wrong_identifications")
     out = {k: sum(r[k] for r in runs) for k in keys}
@@ -168,6 +186,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
     _library_options(p)
     p.set_defaults(func=cmd_rollout)
+    p = sub.add_parser("serve", help="the guardian as an HTTP JSON service (one estimator per session)")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8765)
+    _library_options(p)
+    p.set_defaults(func=cmd_serve)
     return parser
 
 

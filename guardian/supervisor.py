@@ -84,6 +84,7 @@ class IntentionAwareGuardian:
     def step(self, x, u_driver) -> tuple[np.ndarray, GuardianRecord]:
         x = _finite_vector(x, 4, "state")
         u = _finite_vector(u_driver, 2, "driver input")
+        self.library.models[AGNOSTIC].system.piece_index(x)  # raises before any state changes
         if self._last is not None:
             self.estimator.update(self._last[0], self._last[1], x)
         name = self.active_set
