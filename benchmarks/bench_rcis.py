@@ -50,7 +50,7 @@ def main() -> None:
         R.contains(X)
         out["membership_batched_us_per_state"][n] = (time.perf_counter() - t) / len(X) * 1e6
         adm = lib.admissible(n)
-        inside = X[R.contains(X[:5000])][:500]
+        inside = X[:5000][R.contains(X[:5000])][:500]
         times = []
         for i, x in enumerate(inside):
             t = time.perf_counter()
