@@ -89,9 +89,9 @@ class IntentionAwareGuardian:
             self.estimator.update(self._last[0], self._last[1], x)
         name = self.active_set
         adm = self.library.admissible(name)
-        polys = adm.polygons(x)
+        query = adm.at(x)
         inside = self.library.region(name).contains(x)
-        result = adm.override(x, u, self.priority, polys)
+        result = adm.override(x, u, self.priority, query=query)
         if result.feasible:
             applied, changed, overridden = result.applied, result.changed, result.overridden
         else:
@@ -103,9 +103,9 @@ class IntentionAwareGuardian:
             valid_intentions=list(self.estimator.valid),
             identified=self.estimator.valid[0] if len(self.estimator.valid) == 1 else None,
             in_invariant_set=bool(inside), unsafe=not inside,
-            admissible=[P.tolist() for P in polys],
-            throttle_range=adm.intervals(polys, 0, u[1]),
-            steering_range=adm.intervals(polys, 1, u[0]))
+            admissible=[P.tolist() for P in query.polygons],
+            throttle_range=query.ranges(0, u[1]),
+            steering_range=query.ranges(1, u[0]))
         self._last = (x, applied)
         self.t += 1
         return applied, record

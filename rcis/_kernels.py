@@ -112,3 +112,31 @@ def first_piece_holding_all(A, b, starts, X, tol):
         if inside:
             return p
     return -1
+
+
+@njit(cache=True)
+def line_intervals(G, r, starts, axis, value, lo, hi):
+    """Per piece, the range of input ``axis`` on ``{u in [lo,hi] : G u <= r, u[other] = value}``.
+
+    Row p of the result is ``(low, high)``; ``low > high`` means empty.
+    """
+    other = 1 - axis
+    n_pieces = starts.shape[0] - 1
+    out = np.empty((n_pieces, 2))
+    for p in range(n_pieces):
+        a, b = lo[axis], hi[axis]
+        if value < lo[other] or value > hi[other]:
+            a, b = 1.0, 0.0
+        for row in range(starts[p], starts[p + 1]):
+            g = G[row, axis]
+            rr = r[row] - G[row, other] * value
+            if g > 1e-14:
+                b = min(b, rr / g)
+            elif g < -1e-14:
+                a = max(a, rr / g)
+            elif rr < 0.0:
+                a, b = 1.0, 0.0
+                break
+        out[p, 0] = a
+        out[p, 1] = b
+    return out

@@ -63,19 +63,22 @@ class AdmissibleInputs:
         return (np.vstack(GA), np.ascontiguousarray(np.vstack(GB)), np.concatenate(r0),
                 np.asarray(starts, dtype=np.int64))
 
-    def polygons(self, x) -> list[np.ndarray]:
-        """``S(x)`` as convex polygons (vertex arrays, counter-clockwise); [] if empty."""
+    def at(self, x) -> "AdmissibleQuery":
+        """``S(x)`` at one state: its half-planes, answered lazily (polygons, ranges, membership)."""
         x = np.asarray(x, dtype=float)
         if x.shape != (self.system.n_x,) or not np.all(np.isfinite(x)):
             raise ValueError(f"state must be {self.system.n_x} finite numbers, got {x.tolist()}")
         GA, GB, r0, starts = self._rows[self.system.piece_index(x)]
-        verts, counts = _kernels.clip_box_by_halfplanes(GB, r0 - GA @ x, starts,
-                                                        self.u_lower, self.u_upper)
-        return [verts[p, :counts[p]].copy() for p in np.flatnonzero(counts)]
+        return AdmissibleQuery(self, GB, r0 - GA @ x, starts)
+
+    def polygons(self, x) -> list[np.ndarray]:
+        """``S(x)`` as convex polygons (vertex arrays, counter-clockwise); [] if empty."""
+        return self.at(x).polygons
 
     def is_admissible(self, x, u, polygons=None) -> bool:
-        polys = self.polygons(x) if polygons is None else polygons
-        return any(_in_polygon(P, np.asarray(u, float)) for P in polys)
+        if polygons is None:
+            return self.at(x).contains(np.asarray(u, float))
+        return any(_in_polygon(P, np.asarray(u, float)) for P in polygons)
 
     def intervals(self, polygons, axis: int, value: float) -> list[tuple[float, float]]:
         """Admissible ranges of input ``axis`` with the other input fixed to ``value`` (Fig. 6.5)."""
@@ -86,7 +89,7 @@ class AdmissibleInputs:
                 out.append(iv)
         return sorted(out)
 
-    def override(self, x, u, priority=(0, 1), polygons=None) -> OverrideResult:
+    def override(self, x, u, priority=(0, 1), polygons=None, query=None) -> OverrideResult:
         """The driver's input if admissible, else the nearest admissible one by priority.
 
         ``priority`` lists input indices: first change only ``priority[0]``
@@ -98,13 +101,14 @@ class AdmissibleInputs:
             raise ValueError(f"input must be 2 finite numbers, got {u.tolist()}")
         if sorted(priority) != [0, 1]:
             raise ValueError(f"priority must order the inputs 0 and 1, got {priority}")
-        polys = self.polygons(x) if polygons is None else polygons
+        q = query if query is not None else self.at(x)
+        polys = q.polygons if polygons is None else polygons
         if not polys:
             return OverrideResult(u.copy(), False, False, "infeasible")
-        if any(_in_polygon(P, u) for P in polys) and self._in_bounds(u):
+        if self._in_bounds(u) and q.contains(u):
             return OverrideResult(u.copy(), False, True, "none")
         for axis in priority:
-            ranges = self.intervals(polys, axis, u[1 - axis])
+            ranges = q.ranges(axis, u[1 - axis])
             if ranges:
                 v = u.copy()
                 v[axis] = _nearest_in_intervals(ranges, u[axis])
@@ -123,6 +127,34 @@ class AdmissibleInputs:
         if np.max(np.abs(clipped - u)) > BOUNDS_ROUNDING:
             raise ArithmeticError(f"override produced {u.tolist()} outside the input bounds")
         return clipped
+
+
+class AdmissibleQuery:
+    """``S(x) = ∪_p {u in U : G_p u <= r_p}`` at one state x."""
+
+    def __init__(self, owner: AdmissibleInputs, G: np.ndarray, r: np.ndarray, starts: np.ndarray):
+        self.owner, self.G, self.r, self.starts = owner, G, r, starts
+        self._polygons = None
+
+    @property
+    def polygons(self) -> list[np.ndarray]:
+        if self._polygons is None:
+            verts, counts = _kernels.clip_box_by_halfplanes(self.G, self.r, self.starts,
+                                                            self.owner.u_lower, self.owner.u_upper)
+            self._polygons = [verts[p, :counts[p]].copy() for p in np.flatnonzero(counts)]
+        return self._polygons
+
+    def contains(self, u: np.ndarray, tol: float = 1e-12) -> bool:
+        if np.any(u < self.owner.u_lower - tol) or np.any(u > self.owner.u_upper + tol):
+            return False
+        return _kernels.first_piece(self.G, self.r, self.starts, u, tol) >= 0
+
+    def ranges(self, axis: int, value: float) -> list[tuple[float, float]]:
+        """Admissible ranges of input ``axis`` with the other fixed to ``value`` (Fig. 6.5)."""
+        iv = _kernels.line_intervals(self.G, self.r, self.starts, axis, float(value),
+                                     self.owner.u_lower, self.owner.u_upper)
+        keep = iv[:, 0] <= iv[:, 1]
+        return sorted((float(a), float(b)) for a, b in iv[keep])
 
 
 def _in_polygon(P: np.ndarray, u: np.ndarray, tol: float = 1e-12) -> bool:

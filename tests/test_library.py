@@ -135,3 +135,38 @@ def test_export_json_describes_the_same_set(library, tmp_path):
     from_json = np.any([np.all(X @ np.array(pc["A"]).T <= np.array(pc["b"]) + 1e-9, axis=1)
                         for pc in data["pieces"]], axis=0)
     assert np.array_equal(from_json, library.region("cautious").contains(X))
+
+
+def test_halfplane_queries_agree_with_the_polygons(library):
+    """The compiled membership and ranges must say what the clipped polygons say."""
+    rng = np.random.default_rng(9)
+    for name in SET_NAMES:
+        adm = library.admissible(name)
+        X = rng.uniform([16, -0.9, -70, 0], [36, 2.7, 70, 33.5], size=(150, 4))
+        for x in X[library.region(name).contains(X)][:40]:
+            q = adm.at(x)
+            for u in rng.uniform([-3.2, -2], [3.2, 2], size=(20, 2)):
+                in_poly = any(_poly_contains(P, u) for P in q.polygons)
+                assert q.contains(u) == in_poly or _near_edge(q.polygons, u)
+            for axis in (0, 1):
+                v = rng.uniform(-1.8, 1.8) if axis == 0 else rng.uniform(-3, 3)
+                assert _same_ranges(adm.intervals(q.polygons, axis, v), q.ranges(axis, v))
+
+
+def _same_ranges(a, b, tol=1e-9):
+    """Every non-degenerate range of one list matches a range of the other."""
+    def covered(r, others):
+        return any(abs(r[0] - o[0]) < tol and abs(r[1] - o[1]) < tol for o in others)
+    wide_a = [r for r in a if r[1] - r[0] > tol]
+    wide_b = [r for r in b if r[1] - r[0] > tol]
+    return all(covered(r, b) for r in wide_a) and all(covered(r, a) for r in wide_b)
+
+
+def _poly_contains(P, u):
+    from rcis.admissible import _in_polygon
+    return _in_polygon(P, u)
+
+
+def _near_edge(polys, u, tol=1e-9):
+    from rcis.admissible import _dist_to_segment
+    return any(_dist_to_segment(P[i], P[(i + 1) % len(P)], u) < tol for P in polys for i in range(len(P)))
