@@ -196,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "samples", 1) is not None and getattr(args, "samples", 1) < 1:
+    if getattr(args, "samples", 1) < 1:
         print("guardian: --samples must be at least 1", file=sys.stderr)
         return 2
     if getattr(args, "iterations", None) is not None and args.iterations < 0:

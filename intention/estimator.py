@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 import highspy
 import numpy as np
 
-from intention.models import IntentionModel
 
 INF = highspy.kHighsInf
 OBSERVATION_TOL = 1e-9  # equality slack for rounding in the observed states

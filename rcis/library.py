@@ -97,7 +97,7 @@ def _compute(name: str, params: OvertakeParams, settings: LibrarySettings, seed:
                            "seconds": result.seconds, "history": result.history}
 
 
-def _load_or_none(path: Path, payload: dict, quiet: bool):
+def _load_or_none(path: Path, payload: dict):
     if not path.exists():
         return None
     try:
@@ -122,7 +122,7 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
                                   from_cache, payload_key(payload), payload)
 
     def cached(name, payload):
-        return _load_or_none(entry_path(cache_dir, name, payload), payload, quiet) if use_cache else None
+        return _load_or_none(entry_path(cache_dir, name, payload), payload) if use_cache else None
 
     bnd_payload = _payload("bounded_velocity", params, settings, "C_left")
     hit = cached("bounded_velocity", bnd_payload)

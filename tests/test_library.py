@@ -4,7 +4,6 @@ import json
 import numpy as np
 import pytest
 
-from intention.models import left_lane
 from rcis.certify import falsify
 from rcis.library import SET_NAMES, build_library, export_set
 from rcis.polyhedron import Polyhedron
