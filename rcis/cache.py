@@ -20,7 +20,8 @@ from rcis.polyhedron import Polyhedron
 from rcis.region import Region
 
 _FINGERPRINT_FILES = ("rcis/lp.py", "rcis/polyhedron.py", "rcis/region.py", "rcis/pwa.py",
-                      "rcis/invariant.py", "intention/models.py")
+                      "rcis/invariant.py", "intention/models.py",
+                      "itha/car_following.py")
 
 
 class StaleCacheError(RuntimeError):

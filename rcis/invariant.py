@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from rcis.polyhedron import Polyhedron
-from rcis.pwa import PWASystem
+from rcis.pwa import PRE_MARGIN, PWASystem
 from rcis.region import SLIVER_EPS, Region, _box_inside, merge_convex
 
 Progress = Callable[[dict], None]
@@ -46,12 +46,13 @@ def stderr_progress(label: str) -> Progress:
 COVER_BUDGET = 64  # fragments the coverage search may visit before keeping a candidate
 
 
-def _pre_within(system: PWASystem, targets, safe: Region, merge: bool) -> list[Polyhedron]:
+def _pre_within(system: PWASystem, targets, safe: Region, merge: bool,
+                margin: float = PRE_MARGIN) -> list[Polyhedron]:
     """Pre of each target inside each safe piece; pieces of one group merged when convex."""
     out = []
     for T in targets:
         for S in safe.pieces:
-            group = system.pre(T, within=S)
+            group = system.pre(T, within=S, margin=margin)
             out.extend(merge_convex(group) if merge else group)
     return out
 
@@ -106,7 +107,8 @@ FIXED_POINT_EPS = 1e-9  # far below PRE_MARGIN: a converged C_k really is inside
 
 
 def outside_in(system: PWASystem, safe: Region, max_iterations: int = 50,
-               progress: Progress | None = None, eps: float = FIXED_POINT_EPS) -> InvariantResult:
+               progress: Progress | None = None, eps: float = FIXED_POINT_EPS,
+               margin: float = PRE_MARGIN) -> InvariantResult:
     """``C_{k+1} = Pre(C_k) ∩ Q_safe`` from ``C_0 = Q_safe`` until ``C_k ⊆ C_{k+1}``.
 
     Only a converged result is an RCIS (then ``C_k ⊆ Pre(C_k)``). Because Pre
@@ -114,6 +116,10 @@ def outside_in(system: PWASystem, safe: Region, max_iterations: int = 50,
     a single input barely works) shrink by about that margin each step and do
     not converge: the result then says ``converged=False`` and is only an
     outer estimate, not an invariant set.
+
+    ``margin=0`` drops the erosion (Pre then is exact up to rounding); use it
+    with a safe set tightened by more than the rounding, so that a fixed point
+    that is invariant up to rounding still keeps the untightened safe set.
     """
     t0 = time.perf_counter()
     current = safe
@@ -121,7 +127,7 @@ def outside_in(system: PWASystem, safe: Region, max_iterations: int = 50,
     converged = False
     k = 0
     for k in range(1, max_iterations + 1):
-        candidates = _pre_within(system, current.pieces, safe, merge=True)
+        candidates = _pre_within(system, current.pieces, safe, merge=True, margin=margin)
         nxt = Region(_not_covered(candidates, [], safe.dim, SLIVER_EPS, COVER_BUDGET), safe.dim)
         info = {"iteration": k, "new": len(nxt), "pieces": len(nxt), "seconds": time.perf_counter() - t0}
         history.append(info)

@@ -102,6 +102,27 @@ class Region:
         except _BudgetExhausted:
             return False
 
+    def line_intervals(self, point, axis: int, tol: float = 1e-9) -> list[tuple[float, float]]:
+        """Per piece, the values t with ``point`` (coordinate ``axis`` set to t) inside: non-empty ones."""
+        if not self.pieces:
+            return []
+        A, b, starts = self.stacked()
+        x = np.array(point, dtype=float)
+        x[axis] = 0.0
+        r = b + tol - A @ x
+        c = A[:, axis]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = r / c
+        upper = np.where(c > 1e-14, q, np.inf)
+        lower = np.where(c < -1e-14, q, -np.inf)
+        blocked = (np.abs(c) <= 1e-14) & (r < 0)
+        idx = starts[:-1]
+        hi = np.minimum.reduceat(upper, idx)
+        lo = np.maximum.reduceat(lower, idx)
+        dead = np.logical_or.reduceat(blocked, idx)
+        keep = (~dead) & (lo <= hi)
+        return list(zip(lo[keep].tolist(), hi[keep].tolist()))
+
     def is_subset_of(self, other: "Region", eps: float = SLIVER_EPS) -> bool:
         return all(other.covers(P, eps) for P in self.pieces)
 

@@ -1,0 +1,329 @@
+"""The car-following agent (7.3) and its robust controlled invariant set.
+
+State ``x = [v, h, v_L]`` (ego speed, bumper-to-bumper headway, lead speed),
+input ``u = a`` (ego acceleration), disturbance ``d = a_L`` (lead acceleration):
+
+    v+ = v + dt u,   h+ = h + dt (v_L - v),   v_L+ = v_L + dt d,
+
+with ``v_L+`` kept in ``[0, v_max]`` (a lead car does not reverse). Safe set:
+``h >= h_min``, ``v, v_L in [0, v_max]``. "No lead car" is ``h = inf``,
+``v_L = v_max`` and is handled explicitly: such a state is in the set when
+``v in [0, v_max]`` (nothing is ahead; a car can only appear ahead through a
+reset, which the responsibility rule (7.5) covers).
+
+Two representations of the same set, checked against each other in the tests:
+
+* ``MaximalSet``: closed form. The dynamics are monotone (v+ grows with v, u;
+  h+ grows with h, v_L and falls with v; v_L+ grows with v_L, d) and the safe set
+  is ``h >= h_min``, so the worst disturbance is the hardest lead braking
+  (clipped at standstill) and the best input the hardest ego braking. The
+  maximal RCIS is therefore ``{x : min_t Φ_t(x) >= h_min}``, with ``Φ_t`` the
+  headway after t steps of both cars braking as hard as they may (``Φ_0 = h``).
+  Proof sketch: a state outside fails under full braking, and any other input
+  sequence keeps the ego faster, so it fails too; a state inside stays inside
+  under full braking for every disturbance (the lead is never slower than in the
+  worst case). ``min_t Φ_t`` is evaluated exactly at the O(1) candidate times
+  where the headway's increment changes sign, so membership is vectorised and
+  exact for any time step (used for data at 25 Hz).
+* ``PolyhedralSet``: the same set computed by ``rcis`` (outside-in on the
+  worst-case PWA system: by monotonicity ``Pre`` of the robust system equals
+  ``Pre`` of the deterministic system driven by the hardest lead braking). It
+  runs with no erosion margin on a safe set tightened by ``H_TIGHTEN`` so that
+  rounding never reaches the real ``h_min``; a converged result is an RCIS.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rcis.cache import StaleCacheError, code_fingerprint, default_cache_dir, entry_path, load_region, save_region
+from rcis.invariant import outside_in
+from rcis.polyhedron import Polyhedron
+from rcis.pwa import PWAPiece, PWASystem
+from rcis.region import Region
+
+H_TIGHTEN = 1e-6   # the polyhedral set keeps h >= h_min + this (rounding is ~1e-12)
+INNER = 1e-9       # input and speed intervals aim this far inside the set, membership tests allow
+                   # this much outside: the rounding of a simulated step falls in between
+SPEED_BISECTIONS = 48
+AXIS_SHRINK = 1e-7  # m/s: speed intervals of the polyhedral set stay this far from its boundary
+
+
+@dataclass(frozen=True)
+class CarFollowingParams:
+    """Bounds of (7.3); defaults are Section 7.4.1's (dt = 0.1 s, U = D = [-10, 10])."""
+
+    dt: float = 0.1
+    v_max: float = 30.0
+    h_min: float = 5.0
+    u_min: float = -10.0
+    u_max: float = 10.0
+    d_min: float = -10.0
+    d_max: float = 10.0
+
+    def __post_init__(self):
+        for name in ("dt", "v_max", "h_min"):
+            if not (getattr(self, name) > 0 and math.isfinite(getattr(self, name))):
+                raise ValueError(f"CarFollowingParams.{name} must be positive and finite, got {getattr(self, name)}")
+        if not self.u_min < 0 < self.u_max:
+            raise ValueError(f"need u_min < 0 < u_max (the ego must be able to brake), got [{self.u_min}, {self.u_max}]")
+        if not self.d_min < 0 <= self.d_max:
+            raise ValueError(f"need d_min < 0 <= d_max, got [{self.d_min}, {self.d_max}]")
+
+    @property
+    def ego_step(self) -> float:
+        """Speed the ego loses per step of full braking."""
+        return -self.u_min * self.dt
+
+    @property
+    def lead_step(self) -> float:
+        """Speed the lead loses per step of full braking."""
+        return -self.d_min * self.dt
+
+    def worst_lead_speed(self, vL):
+        """The lead's slowest next speed (full braking, stopped at 0)."""
+        return np.maximum(np.asarray(vL, float) + self.dt * self.d_min, 0.0)
+
+
+def _braking_distance(v, a, t):
+    """``Σ_{k<t} max(v - k a, 0)`` (speeds summed over t steps of braking by a per step)."""
+    n = np.minimum(t, np.ceil(v / a))
+    return n * v - a * n * (n - 1) / 2
+
+
+def headway_floor(p: CarFollowingParams, v, h, vL):
+    """``min_t Φ_t``: the smallest headway when both cars brake as hard as they may."""
+    v, h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL))
+    ae, aL = p.ego_step, p.lead_step
+    ke, kL = np.ceil(v / ae), np.ceil(vL / aL)
+    t1, t_end = np.minimum(ke, kL), np.maximum(ke, kL)
+    cands = [np.zeros_like(v), t1, t_end]
+    if ae > aL:  # relative speed rises while both brake: it may turn from - to +
+        k_star = np.ceil(np.maximum(v - vL, 0.0) / (ae - aL))
+        cands.append(np.minimum(k_star, t1))
+    floor = np.full(v.shape, np.inf)
+    for t in cands:
+        phi = h + p.dt * (_braking_distance(vL, aL, t) - _braking_distance(v, ae, t))
+        floor = np.minimum(floor, phi)
+    return floor
+
+
+class MaximalSet:
+    """The maximal RCIS of (7.3) in closed form (see the module docstring)."""
+
+    kind = "closed-form"
+
+    def __init__(self, params: CarFollowingParams = CarFollowingParams()):
+        self.params = params
+
+    def contains(self, X) -> np.ndarray:
+        X = np.atleast_2d(np.asarray(X, float))
+        v, h, vL = X[:, 0], X[:, 1], X[:, 2]
+        p = self.params
+        ok = (v >= 0) & (v <= p.v_max)
+        free = np.isposinf(h)
+        hf = np.where(free, 0.0, h)
+        lead_ok = (vL >= 0) & (vL <= p.v_max) & (headway_floor(p, v, hf, np.clip(vL, 0, p.v_max)) >= p.h_min)
+        return ok & (free | lead_ok)
+
+    def max_speed(self, h, vL) -> np.ndarray:
+        """``sup {v in [0, v_max] : (v, h, v_L) in C}``; -inf where no speed is safe."""
+        p = self.params
+        h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(h, vL))
+        free = np.isposinf(h)
+        hf = np.where(free, 0.0, h)
+        vLc = np.clip(vL, 0, p.v_max)
+        safe = lambda s: headway_floor(p, s, hf, vLc) >= p.h_min + INNER  # noqa: E731 - monotone in s
+        lo, hi = np.zeros(h.shape), np.full(h.shape, p.v_max)
+        top_ok = safe(hi)
+        for _ in range(SPEED_BISECTIONS):
+            mid = (lo + hi) / 2
+            good = safe(mid)
+            lo, hi = np.where(good, mid, lo), np.where(good, hi, mid)
+        out = np.where(top_ok, p.v_max, lo)
+        out = np.where(safe(np.zeros(h.shape)) & (vL >= 0) & (vL <= p.v_max), out, -np.inf)
+        return np.where(free, p.v_max, out)
+
+    def min_lead_speed(self, v: float, h: float) -> float:
+        """``inf {v_L in [0, v_max] : (v, h, v_L) in C}``; inf where none is."""
+        p = self.params
+        if math.isinf(h):
+            return 0.0 if 0 <= v <= p.v_max else math.inf
+        if not 0 <= v <= p.v_max:
+            return math.inf
+        safe = lambda s: headway_floor(p, v, h, s) >= p.h_min + INNER  # noqa: E731 - monotone in s
+        if safe(0.0):
+            return 0.0
+        if not safe(p.v_max):
+            return math.inf
+        lo, hi = 0.0, p.v_max
+        for _ in range(SPEED_BISECTIONS):
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if safe(mid) else (mid, hi)
+        return hi
+
+    def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
+        """Ego speeds v with ``(v, h, vL)`` in C."""
+        top = float(self.max_speed(h, vL))
+        return [(0.0, top)] if top >= 0 else []
+
+    def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]:
+        """Lead speeds v_L with ``(v, h, v_L)`` in C."""
+        lo = self.min_lead_speed(v, h)
+        return [(lo, self.params.v_max)] if lo <= self.params.v_max else []
+
+    def input_intervals(self, v: float, h_next: float, vL_next: float) -> list[tuple[float, float]]:
+        """Inputs u in U with ``(v + dt u, h_next, vL_next)`` in C (one interval or none)."""
+        return speeds_to_inputs(self.params, v, self.speed_intervals(h_next, vL_next))
+
+
+class PolyhedralSet:
+    """The same RCIS as a union of polyhedra computed by ``rcis`` (outside-in)."""
+
+    kind = "polyhedral"
+
+    def __init__(self, params: CarFollowingParams, region: Region, info: dict):
+        self.params = params
+        self.region = region
+        self.info = info
+
+    def contains(self, X) -> np.ndarray:
+        X = np.atleast_2d(np.asarray(X, float))
+        free = np.isposinf(X[:, 1])
+        ok = (X[:, 0] >= 0) & (X[:, 0] <= self.params.v_max)
+        finite = np.where(free[:, None], 0.0, X)
+        return ok & (free | self.region.contains(finite, tol=INNER))
+
+    def _axis_intervals(self, axis: int, point) -> list[tuple[float, float]]:
+        """Speeds (``axis`` 0 or 2) that put ``point`` (other coordinates fixed) in the set.
+
+        Ends inside ``(0, v_max)`` move inwards by ``AXIS_SHRINK`` so that a state
+        built from them stays inside after rounding (``contains`` allows ``INNER``).
+        """
+        vmax = self.params.v_max
+        if np.isposinf(point[1]):
+            return [(0.0, vmax)]
+        out = []
+        for lo, hi in _merge_intervals(self.region.line_intervals(np.asarray(point, float), axis, tol=INNER)):
+            lo = 0.0 if lo <= 0.0 else lo + AXIS_SHRINK
+            hi = vmax if hi >= vmax else hi - AXIS_SHRINK
+            if lo <= hi:
+                out.append((lo, hi))
+        return out
+
+    def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
+        return self._axis_intervals(0, (0.0, h, vL))
+
+    def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]:
+        return self._axis_intervals(2, (v, h, 0.0))
+
+    def input_intervals(self, v: float, h_next: float, vL_next: float) -> list[tuple[float, float]]:
+        return speeds_to_inputs(self.params, v, self.speed_intervals(h_next, vL_next))
+
+
+def speeds_to_inputs(p: CarFollowingParams, v: float, speeds) -> list[tuple[float, float]]:
+    """Inputs u in U whose next speed ``v + dt u`` lies in one of the speed intervals."""
+    out = []
+    for lo, hi in speeds:
+        lo, hi = max(lo, 0.0), min(hi, p.v_max)
+        a, b = max(p.u_min, (lo - v) / p.dt), min(p.u_max, (hi - v) / p.dt)
+        while v + p.dt * a < lo:  # rounding: the next speed itself must be in the interval
+            a = math.nextafter(a, math.inf)
+        while v + p.dt * b > hi:
+            b = math.nextafter(b, -math.inf)
+        if a <= b:
+            out.append((a, b))
+    return out
+
+
+def _merge_intervals(iv):
+    out = []
+    for lo, hi in sorted(iv):
+        if out and lo <= out[-1][1] + 1e-12:
+            out[-1] = (out[-1][0], max(out[-1][1], hi))
+        else:
+            out.append((lo, hi))
+    return out
+
+
+def admissible_inputs(S, x) -> list[tuple[float, float]]:
+    """Self-safe inputs (7.4) at ``x = (v, h, v_L)``: ``f(x, u, D) ⊆ C``."""
+    v, h, vL = (float(a) for a in x)
+    p = S.params
+    if math.isinf(h):
+        return speeds_to_inputs(p, v, [(0.0, p.v_max)])
+    return S.input_intervals(v, h + p.dt * (vL - v), float(p.worst_lead_speed(vL)))
+
+
+# ---- the polyhedral computation ------------------------------------------------------
+def _box(lo, hi) -> Polyhedron:
+    rows, rhs = [], []
+    for i, (a, b) in enumerate(zip(lo, hi)):
+        e = np.eye(3)[i]
+        if np.isfinite(b):
+            rows.append(e)
+            rhs.append(b)
+        if np.isfinite(a):
+            rows.append(-e)
+            rhs.append(-a)
+    return Polyhedron(np.array(rows), np.array(rhs))
+
+
+def worst_case_system(p: CarFollowingParams) -> PWASystem:
+    """(7.3) driven by the hardest lead braking, stopped at 0: two affine pieces.
+
+    The pieces' closed domains meet at ``v_L = dt |d_min|`` where both maps agree.
+    """
+    inf, c = np.inf, p.lead_step
+    A = np.array([[1.0, 0, 0], [-p.dt, 1, p.dt], [0, 0, 1]])
+    B = np.array([[p.dt], [0.0], [0.0]])
+    A_stop = A.copy()
+    A_stop[2, 2] = 0.0
+    no_w, E0 = Polyhedron.from_box([0.0], [0.0]), np.zeros((3, 1))
+    pieces = [PWAPiece(_box([-inf, -inf, c], [inf, inf, inf]), A, B, np.array([0, 0, -c]), E0, no_w, label="braking"),
+              PWAPiece(_box([-inf, -inf, -inf], [inf, inf, c]), A_stop, B, np.zeros(3), E0, no_w, label="stopped")]
+    X = _box([0, -inf, 0], [p.v_max, inf, p.v_max])
+    return PWASystem(pieces, Polyhedron.from_box([p.u_min], [p.u_max]), X, name="car-following (worst case)")
+
+
+def safe_set(p: CarFollowingParams, tighten: float = 0.0) -> Polyhedron:
+    return _box([0, p.h_min + tighten, 0], [p.v_max, np.inf, p.v_max])
+
+
+def compute_polyhedral(p: CarFollowingParams, max_iterations: int = 400, progress=None) -> PolyhedralSet:
+    res = outside_in(worst_case_system(p), Region([safe_set(p, H_TIGHTEN)]), max_iterations=max_iterations,
+                     progress=progress, margin=0.0)
+    if not res.converged:
+        raise RuntimeError(f"car-following outside-in did not converge in {max_iterations} iterations "
+                           f"({len(res.region)} pieces); raise max_iterations")
+    info = {"iterations": res.iterations, "pieces": len(res.region), "seconds": res.seconds}
+    return PolyhedralSet(p, res.region, info)
+
+
+def load_or_build(p: CarFollowingParams, cache_dir=None, rebuild: bool = False, progress=None,
+                  log=None) -> PolyhedralSet:
+    """The polyhedral set from the disk cache, or computed and stored (keyed by every parameter)."""
+    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint()}
+    path = entry_path(cache_dir, "car-following", payload)
+    if path.exists() and not rebuild:
+        try:
+            region, info = load_region(path, payload)
+            return PolyhedralSet(p, region, info)
+        except StaleCacheError as exc:
+            if log:
+                log(f"refusing cache entry: {exc}; rebuilding")
+    S = compute_polyhedral(p, progress=progress)
+    save_region(path, S.region, payload, S.info)
+    return S
+
+
+def make_set(p: CarFollowingParams, kind: str = "closed-form", **kw):
+    if kind == "closed-form":
+        return MaximalSet(p)
+    if kind == "polyhedral":
+        return load_or_build(p, **kw)
+    raise ValueError(f"unknown set kind {kind!r}; choose 'closed-form' or 'polyhedral'")

@@ -1,0 +1,138 @@
+"""The highway ITHA: responsibility by brute force over the other cars' triggers, (7.7), Section 7.4.1."""
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from itha.car_following import CarFollowingParams, MaximalSet, load_or_build
+from itha.highway import (LANE_SHIFT, STAY, EgoSupervisor, HighwayParams, best_input, example8_order,
+                          highway_experiment, initial_traffic, leader, local_states)
+
+CF = CarFollowingParams()
+SMALL = HighwayParams(n_lanes=3, n_cars=5, ego_lane=2, road_window=(-30.0, 60.0))
+
+
+@pytest.fixture(scope="module")
+def S(tmp_path_factory):
+    return load_or_build(CF, cache_dir=tmp_path_factory.mktemp("hw-cache"))
+
+
+def _next(p, v, lane, triggers, acc):
+    dt = CF.dt
+    return ([p[k] + dt * v[k] for k in range(len(p))], [v[k] + dt * acc[k] for k in range(len(p))],
+            [lane[k] + LANE_SHIFT[triggers[k]] for k in range(len(p))])
+
+
+def _violations(S, prm, p, v, lane, trig, u_ego, triggers):
+    """Cars the ego answers for, reset outside the RCIS in this scenario (worst inputs and braking)."""
+    n = len(p)
+    acc = [u_ego] + [0.0] * (n - 1)
+    pn, vn, ln = _next(p, v, lane, [trig] + list(triggers), acc)
+    stay_ln = list(ln)
+    stay_ln[0] = lane[0]  # the counterfactual: the ego keeps its lane
+    bad = []
+    for i in range(n):
+        L = leader(pn, ln, i)
+        if i != 0 and L == leader(pn, stay_ln, i):
+            continue  # the ego's trigger did not change who i follows
+        if i != 0 and triggers[i - 1] != STAY and prm is not None and prm == "ordered":
+            continue  # a later car moving in answers for itself under the ordered contract
+        v_i = vn[i] if i == 0 else min(v[i] + CF.dt * CF.u_max, CF.v_max)
+        if L < 0:
+            continue
+        v_L = vn[0] if L == 0 else float(CF.worst_lead_speed(v[L]))
+        x = (v_i, pn[L] - pn[i] - SMALL.car_length, v_L)
+        if not S.contains(np.array([x]))[0]:
+            bad.append((i, x))
+    return bad
+
+
+@pytest.mark.parametrize("overapprox", ["trivial", "ordered"])
+def test_allowed_lane_changes_are_responsible_by_brute_force(S, overapprox):
+    rng = np.random.default_rng(7)
+    checked = 0
+    for trial in range(60):
+        p, v, lane, _ = initial_traffic(SMALL, S, rng)
+        v = [float(rng.uniform(0, 20)) for _ in v]
+        if not S.contains(local_states(SMALL, p, v, lane)).all():
+            continue
+        order = example8_order(p, lane)
+        ahead = set(order[:order.index(0)])
+        sup = EgoSupervisor(SMALL, S, overapprox)
+        for vd in sup.choices(p, v, lane, 0, {k: STAY for k in ahead} if overapprox == "ordered" else {}):
+            if vd.trigger == STAY or not vd.inputs:
+                continue
+            others = range(1, len(p))
+            options = [[STAY] if (overapprox == "ordered" and k in ahead) else
+                       [t for t in LANE_SHIFT if 1 <= lane[k] + LANE_SHIFT[t] <= SMALL.n_lanes] for k in others]
+            for lo, hi in vd.inputs:
+                for u in (lo, hi, (lo + hi) / 2):
+                    for triggers in itertools.product(*options):
+                        bad = _violations(S, overapprox, p, v, lane, vd.trigger, u, triggers)
+                        assert not bad, (vd.trigger, u, triggers, bad)
+                        checked += 1
+    assert checked > 300
+
+
+def test_the_brute_force_check_can_fail(S):
+    """Without the responsibility rule (every lane change allowed) the same check finds violations."""
+    rng = np.random.default_rng(8)
+    for trial in range(60):
+        p, v, lane, _ = initial_traffic(SMALL, S, rng)
+        for trig in ("left", "right"):
+            if not 1 <= lane[0] + LANE_SHIFT[trig] <= SMALL.n_lanes:
+                continue
+            if _violations(S, "trivial", p, v, lane, trig, 0.0, [STAY] * (len(p) - 1)):
+                return
+    pytest.fail("no unsafe lane change found among random traffic")
+
+
+def test_trivial_is_more_conservative_than_ordered(S):
+    rng = np.random.default_rng(9)
+    more = 0
+    for trial in range(80):
+        p, v, lane, _ = initial_traffic(SMALL, S, rng)
+        order = example8_order(p, lane)
+        ann = {k: STAY for k in order[:order.index(0)]}
+        t = EgoSupervisor(SMALL, S, "trivial").choices(p, v, lane, 0, ann)
+        o = EgoSupervisor(SMALL, S, "ordered").choices(p, v, lane, 0, ann)
+        for a, b in zip(t, o):
+            assert not (a.inputs and not b.inputs), "trivial allowed what ordered refused"
+            more += bool(b.inputs) and not a.inputs
+    assert more > 0
+
+
+def test_qp_of_7_7_matches_cvxpy():
+    cp = pytest.importorskip("cvxpy")
+    prm = HighwayParams()
+    rng = np.random.default_rng(0)
+    for _ in range(15):
+        v0 = float(rng.uniform(0, 25))
+        lo = float(rng.uniform(-10, 5))
+        hi = float(rng.uniform(lo, 10))
+        u, cost = best_input([(lo, hi)], v0, prm)
+        U = cp.Variable(prm.horizon)
+        vs = v0 + CF.dt * cp.cumsum(U)
+        prob = cp.Problem(cp.Minimize(cp.sum_squares(vs - prm.v_nom)),
+                          [U[0] >= lo, U[0] <= hi, U >= CF.u_min, U <= CF.u_max])
+        prob.solve()
+        assert cost == pytest.approx(prob.value, rel=1e-5, abs=1e-5)
+        assert u == pytest.approx(float(U.value[0]), abs=1e-3)
+
+
+def test_order_of_example_8():
+    p, lane = [10.0, 30.0, 10.0, 0.0], [2, 1, 1, 3]
+    assert example8_order(p, lane) == [1, 2, 0, 3]  # ahead first; aligned: slower (lower) lane first
+
+
+def test_section_7_4_1_runs_are_safe(S):
+    r = highway_experiment(runs=3, steps=150, seed=0, S=S)
+    for oa in ("trivial", "ordered"):
+        assert r[oa]["unsafe_steps"] == 0 and r[oa]["collisions"] == 0 and r[oa]["infeasible_steps"] == 0
+        assert r[oa]["distance_mean"] > 0
+
+
+def test_closed_form_set_runs_the_same_experiment():
+    r = highway_experiment(runs=1, steps=60, seed=1, S=MaximalSet(CF))
+    assert r["ordered"]["unsafe_steps"] == 0
