@@ -81,6 +81,98 @@ def cmd_rcis_plot(args) -> int:
     return 0
 
 
+def _stderr_counter(label: str):
+    def report(*a):
+        *what, done, total = a
+        print(f"[{label}{' ' + str(what[0]) if what else ''}] {done}/{total}", file=sys.stderr, flush=True)
+    return report
+
+
+def _positive(args, *names) -> str | None:
+    for n in names:
+        if getattr(args, n) < 1:
+            return f"--{n} must be at least 1, got {getattr(args, n)}"
+    return None
+
+
+def cmd_itha_highway(args) -> int:
+    from itha.car_following import CarFollowingParams, make_set
+    from itha.highway import OVERAPPROXIMATIONS, HighwayParams, highway_experiment, run_highway_episode
+
+    bad = _positive(args, "runs", "steps")
+    if bad:
+        print(f"guardian itha highway: {bad}", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    prm = HighwayParams()
+    S = make_set(prm.car_following, args.set, cache_dir=args.cache_dir, rebuild=args.rebuild,
+                 log=lambda m: print(m, file=sys.stderr))
+    which = OVERAPPROXIMATIONS if args.overapprox == "both" else (args.overapprox,)
+    result = highway_experiment(args.runs, args.steps, args.seed, S, prm, which,
+                                progress=_stderr_counter("itha highway"))
+    if args.rerun:
+        import numpy as np
+        from guardian.rerun_log import HighwayRecorder
+
+        rec = HighwayRecorder(args.rerun, prm.n_lanes)
+        for oa in which:
+            ep = run_highway_episode(prm, S, oa, args.steps, np.random.default_rng([args.seed, 0]), record=True)
+            rec.log_itha_frames(ep.frames)
+        rec.close()
+    out = dict(result)
+    out["set"] = {"kind": S.kind, **getattr(S, "info", {})}
+    out["seconds"] = round(time.perf_counter() - t0, 3)
+    text = "\n".join(f"{oa:8s} distance_mean={r['distance_mean']:.1f} m unsafe_steps={r['unsafe_steps']} "
+                     f"lane_changes={r['lane_changes']} collisions={r['collisions']}"
+                     for oa, r in result.items() if oa in which)
+    _emit(out, args.json, text)
+    return 0 if all(result[oa]["unsafe_steps"] == 0 for oa in which) else 1
+
+
+def cmd_itha_processors(args) -> int:
+    from itha.processors import ProcessorParams, processors_experiment
+
+    bad = _positive(args, "runs", "steps")
+    if bad:
+        print(f"guardian itha processors: {bad}", file=sys.stderr)
+        return 2
+    result = processors_experiment(args.runs, args.steps, args.seed, ProcessorParams(keep_jobs=args.keep_jobs),
+                                   progress=_stderr_counter("itha processors"))
+    text = "\n".join(f"{k:8s} accepted_jobs_mean={r['accepted_jobs_mean']:.2f} "
+                     f"violations_mean={r['violations_mean']:.2f}" for k, r in result.items())
+    _emit(result, args.json, text)
+    return 0
+
+
+def cmd_rollout_highway_env(args) -> int:
+    import gymnasium as gym
+    import highway_env  # noqa: F401 - registers the environments
+
+    from envs.highway_guard import highway_rollouts
+
+    if args.env not in gym.registry:
+        known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "roundabout")))
+        print(f"guardian rollout: unknown environment {args.env!r}; highway-env ids: {', '.join(known)}",
+              file=sys.stderr)
+        return 2
+
+    recorder = None
+    if args.rerun:
+        from guardian.rerun_log import HighwayRecorder
+        recorder = HighwayRecorder(args.rerun, 4)
+    result = highway_rollouts(args.env, args.agent, args.episodes, args.seed, guardian=not args.no_guardian,
+                              progress=_stderr_counter(f"rollout {args.env}"), recorder=recorder)
+    if recorder:
+        recorder.close()
+    result["env"], result["agent"], result["guardian"] = args.env, args.agent, not args.no_guardian
+    text = (f"{args.env} {args.agent} guardian={'off' if args.no_guardian else 'on'} episodes={result['episodes']} "
+            f"steps={result['steps']} collisions={result['collisions']} "
+            f"ego_at_fault={result['ego_at_fault_collisions']} override_steps={result['override_steps']} "
+            f"distance_mean={result['distance_mean']:.1f} m")
+    _emit(result, args.json, text)
+    return 0
+
+
 def cmd_rollout(args) -> int:
     from envs.drivers import DRIVERS
     from guardian.rollout import overtake_rollouts
@@ -88,6 +180,11 @@ def cmd_rollout(args) -> int:
     if args.episodes < 1:
         print("guardian rollout: --episodes must be at least 1", file=sys.stderr)
         return 2
+    if args.env is not None:
+        if args.scenario is not None:
+            print("guardian rollout: --env and --scenario exclude each other", file=sys.stderr)
+            return 2
+        return cmd_rollout_highway_env(args)
     lib = _library(args)
     intentions = ("aggressive", "cautious") if args.intention == "all" else (args.intention,)
     drivers = DRIVERS if args.driver == "all" else (args.driver,)
@@ -172,7 +269,12 @@ def build_parser() -> argparse.ArgumentParser:
     _library_options(p)
     p.set_defaults(func=cmd_rcis_plot)
     p = sub.add_parser("rollout", help="supervised rollouts of the overtake scenario")
-    p.add_argument("--scenario", choices=["overtake"], default="overtake")
+    p.add_argument("--scenario", choices=["overtake"], default=None,
+                   help="the overtake scenario (the default when --env is not given)")
+    p.add_argument("--env", default=None,
+                   help="a highway-env id (e.g. highway-v0, highway-fast-v0): ITHA guardian on highway-env")
+    p.add_argument("--agent", choices=["random", "reckless", "idle"], default="random",
+                   help="the agent driving a highway-env environment (with --env)")
     p.add_argument("--intention", choices=["aggressive", "cautious", "all"], default="cautious")
     p.add_argument("--driver", choices=["mpc", "bad", "careful", "random", "all"], default="mpc")
     p.add_argument("--episodes", type=int, default=10)
@@ -186,6 +288,28 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
     _library_options(p)
     p.set_defaults(func=cmd_rollout)
+    itha = sub.add_parser("itha", help="inter-triggering hybrid automata experiments (Chapter 7)")
+    isub = itha.add_subparsers(dest="itha_command", required=True)
+    p = isub.add_parser("highway", help="Section 7.4.1: the responsible ego on a 5-lane highway with IDM traffic")
+    p.add_argument("--runs", type=int, default=25)
+    p.add_argument("--steps", type=int, default=500)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overapprox", choices=["trivial", "ordered", "both"], default="both")
+    p.add_argument("--set", choices=["polyhedral", "closed-form"], default="polyhedral",
+                   help="the car-following RCIS: computed by rcis (cached) or its closed form")
+    p.add_argument("--cache-dir", type=Path, default=None)
+    p.add_argument("--rebuild", action="store_true")
+    p.add_argument("--rerun", type=Path, default=None, help="record run 0 of each over-approximation (.rrd)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_itha_highway)
+    p = isub.add_parser("processors", help="Section 7.4.2: parallel processors, Table 7.1")
+    p.add_argument("--runs", type=int, default=25)
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--keep-jobs", type=int, default=1,
+                   help="jobs a recruiter keeps for itself (0 = (7.9) literally; see README)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_itha_processors)
     p = sub.add_parser("serve", help="the guardian as an HTTP JSON service (one estimator per session)")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8765)

@@ -93,3 +93,79 @@ def read_texts(path: Path, entity: str) -> list[str]:
             col = chunk.to_record_batch().column("TextLog:text")
             texts.extend(t for row in col.to_pylist() for t in (row or []))
     return texts
+
+
+# ---- the multi-lane highway (ITHA) -------------------------------------------------------------
+HIGHWAY_LANE_WIDTH = 4.0
+
+
+class HighwayRecorder:
+    """A highway run: lanes, every car, the ego's triggering decision, verdicts and overrides.
+
+    * ``road/lanes`` lane markings (static), ``road/cars`` the traffic and ``road/ego`` the ego
+      as boxes (x along the road, y = lane centre; lane 1 is the rightmost, drawn lowest)
+    * ``ego/trigger`` (text), ``ego/acceleration`` (scalar)
+    * ``verdicts/{stay,left,right}`` 1 if allowed (self-safe, responsible), 0 if not, with the
+      reason in ``events/verdicts``; ``events/override`` for refused lane changes and clipped
+      accelerations
+    """
+
+    def __init__(self, path: Path, n_lanes: int, application_id: str = "guardian-highway"):
+        self.rec = rr.RecordingStream(application_id)
+        self.rec.save(str(path))
+        self.path = Path(path)
+        self.n_lanes = n_lanes
+        self.step_index = 0
+        ys = [(k - 0.5) * HIGHWAY_LANE_WIDTH for k in range(1, n_lanes + 2)]
+        self.rec.log("road/lanes", rr.LineStrips2D([[[-200.0, y - HIGHWAY_LANE_WIDTH],
+                                                     [20000.0, y - HIGHWAY_LANE_WIDTH]] for y in ys]),
+                     static=True)
+
+    def _y(self, lane_number: float) -> float:
+        return (lane_number - 1) * HIGHWAY_LANE_WIDTH
+
+    def log_frame(self, p, lane, ego: int, trigger: str, accel: float, verdicts, overridden: str = "",
+                  length: float = 5.0) -> None:
+        rec = self.rec
+        rec.set_time("step", sequence=self.step_index)
+        others = [k for k in range(len(p)) if k != ego]
+        rec.log("road/cars", rr.Boxes2D(centers=[[p[k], self._y(lane[k])] for k in others],
+                                        half_sizes=[[length / 2, 1.0]] * len(others)))
+        rec.log("road/ego", rr.Boxes2D(centers=[[p[ego], self._y(lane[ego])]], half_sizes=[[length / 2, 1.0]],
+                                       labels=["ego"]))
+        rec.log("ego/trigger", rr.TextLog(trigger))
+        rec.log("ego/acceleration", rr.Scalars([float(accel)]))
+        reasons = []
+        for trig, ok, why in verdicts:
+            rec.log(f"verdicts/{trig}", rr.Scalars([1.0 if ok else 0.0]))
+            if not ok and why and why != "no such lane":
+                reasons.append(f"{trig}: {why}")
+        if reasons:
+            rec.log("events/verdicts", rr.TextLog("; ".join(reasons)))
+        if overridden:
+            rec.log("events/override", rr.TextLog(overridden, level="WARN"))
+        self.step_index += 1
+
+    def log_itha_frames(self, frames) -> None:
+        for fr in frames:
+            self.log_frame(fr["p"], fr["lane"], 0, fr["trigger"], fr["u"], fr["verdicts"])
+
+    def log(self, env, episode: int, t: int, proposed: str, guardian_info: dict) -> None:
+        """One highway-env policy step (``highway_rollouts(recorder=...)``)."""
+        base = env.unwrapped
+        ego = base.vehicle
+        vehicles = [ego] + [v for v in base.road.vehicles if v is not ego]
+        n_lanes = self.n_lanes
+        p = [float(v.position[0]) for v in vehicles]
+        lane = [n_lanes - float(v.position[1]) / HIGHWAY_LANE_WIDTH for v in vehicles]
+        g = guardian_info or {}
+        note = ""
+        if g.get("refused"):
+            note = f"episode {episode} step {t}: {g['proposed']} refused ({g['reason']})"
+        elif g.get("clipped_steps"):
+            note = f"episode {episode} step {t}: acceleration clipped in {g['clipped_steps']} simulation steps"
+        self.log_frame(p, lane, 0, g.get("applied", proposed), float(ego.action.get("acceleration", 0.0)), [],
+                       note, ego.LENGTH)
+
+    def close(self) -> None:
+        self.rec.flush()

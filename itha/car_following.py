@@ -94,6 +94,22 @@ def _braking_distance(v, a, t):
     return n * v - a * n * (n - 1) / 2
 
 
+def _floor_scalar(p: CarFollowingParams, v: float, h: float, vL: float) -> float:
+    """``headway_floor`` for one state, in plain floats (the hot path of run-time queries)."""
+    ae, aL, dt = p.ego_step, p.lead_step, p.dt
+
+    def dist(s, a, t):
+        n = min(t, math.ceil(s / a))
+        return n * s - a * n * (n - 1) / 2
+
+    ke, kL = math.ceil(v / ae), math.ceil(vL / aL)
+    t1, t_end = min(ke, kL), max(ke, kL)
+    cands = [0, t1, t_end]
+    if ae > aL:
+        cands.append(min(math.ceil(max(v - vL, 0.0) / (ae - aL)), t1))
+    return min(h + dt * (dist(vL, aL, t) - dist(v, ae, t)) for t in cands)
+
+
 def headway_floor(p: CarFollowingParams, v, h, vL):
     """``min_t Φ_t``: the smallest headway when both cars brake as hard as they may."""
     v, h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL))
@@ -154,7 +170,7 @@ class MaximalSet:
             return 0.0 if 0 <= v <= p.v_max else math.inf
         if not 0 <= v <= p.v_max:
             return math.inf
-        safe = lambda s: headway_floor(p, v, h, s) >= p.h_min + INNER  # noqa: E731 - monotone in s
+        safe = lambda s: _floor_scalar(p, v, h, s) >= p.h_min + INNER  # noqa: E731 - monotone in s
         if safe(0.0):
             return 0.0
         if not safe(p.v_max):
@@ -167,8 +183,21 @@ class MaximalSet:
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         """Ego speeds v with ``(v, h, vL)`` in C."""
-        top = float(self.max_speed(h, vL))
-        return [(0.0, top)] if top >= 0 else []
+        p = self.params
+        if math.isinf(h):
+            return [(0.0, p.v_max)]
+        if not 0 <= vL <= p.v_max:
+            return []
+        safe = lambda s: _floor_scalar(p, s, h, vL) >= p.h_min + INNER  # noqa: E731 - monotone in s
+        if not safe(0.0):
+            return []
+        if safe(p.v_max):
+            return [(0.0, p.v_max)]
+        lo, hi = 0.0, p.v_max
+        for _ in range(SPEED_BISECTIONS):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if safe(mid) else (lo, mid)
+        return [(0.0, lo)]
 
     def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]:
         """Lead speeds v_L with ``(v, h, v_L)`` in C."""

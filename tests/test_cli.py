@@ -48,3 +48,49 @@ def test_rollout_json(library, cache_dir, capsys):
 def test_rollout_rejects_zero_episodes(library, cache_dir, capsys):
     assert main(["rollout", "--episodes", "0", "--cache-dir", str(cache_dir)]) == 2
     assert "--episodes" in capsys.readouterr().err
+
+
+def test_itha_highway_json(tmp_path, capsys):
+    code, data = run_json(capsys, ["itha", "highway", "--runs", "2", "--steps", "40", "--seed", "1", "--json",
+                                   "--cache-dir", str(tmp_path), "--rerun", str(tmp_path / "hw.rrd")])
+    assert code == 0
+    for oa in ("trivial", "ordered"):
+        assert {"distance_mean", "unsafe_steps", "lane_changes"} <= set(data[oa])
+        assert data[oa]["unsafe_steps"] == 0
+    from guardian.rerun_log import read_entities, read_texts
+    ents = read_entities(tmp_path / "hw.rrd")
+    for e in ("/road/lanes", "/road/cars", "/road/ego", "/ego/trigger", "/verdicts/left", "/verdicts/right"):
+        assert ents.get(e, 0) > 0, (e, sorted(ents))
+    assert set(read_texts(tmp_path / "hw.rrd", "/ego/trigger")) <= {"stay", "left", "right"}
+
+
+def test_itha_processors_json(capsys):
+    code, data = run_json(capsys, ["itha", "processors", "--runs", "3", "--steps", "20", "--json"])
+    assert code == 0
+    for est in ("trivial", "under", "ordered"):
+        assert {"accepted_jobs_mean", "violations_mean"} <= set(data[est])
+
+
+def test_itha_rejects_bad_counts(capsys):
+    assert main(["itha", "processors", "--runs", "0"]) == 2
+    assert "--runs" in capsys.readouterr().err
+
+
+def test_rollout_highway_env_json(tmp_path, capsys):
+    code, data = run_json(capsys, ["rollout", "--env", "highway-fast-v0", "--agent", "reckless", "--episodes", "1",
+                                   "--seed", "2", "--json", "--rerun", str(tmp_path / "he.rrd")])
+    assert code == 0
+    assert {"episodes", "steps", "collisions", "ego_at_fault_collisions", "override_steps"} <= set(data)
+    assert data["ego_at_fault_collisions"] == 0
+    from guardian.rerun_log import read_entities, read_texts
+    ents = read_entities(tmp_path / "he.rrd")
+    assert ents.get("/road/ego", 0) == data["steps"]
+    overrides = read_texts(tmp_path / "he.rrd", "/events/override")
+    assert overrides and all("episode 0" in t for t in overrides)
+
+
+def test_rollout_env_errors(capsys):
+    assert main(["rollout", "--env", "nope-v0"]) == 2
+    assert "unknown environment 'nope-v0'" in capsys.readouterr().err
+    assert main(["rollout", "--env", "highway-v0", "--scenario", "overtake"]) == 2
+    assert "exclude" in capsys.readouterr().err
