@@ -35,8 +35,9 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from rcis.admissible import nearest_in_intervals
 from itha.car_following import CarFollowingParams, MaximalSet, admissible_inputs, speeds_to_inputs
-from itha.highway import LEFT, RIGHT, STAY, EgoSupervisor, HighwayParams
+from itha.highway import LEFT, RIGHT, EgoSupervisor, HighwayParams, intersect_intervals
 
 LANE_CHANGE_ACTIONS = {"LANE_LEFT": LEFT, "LANE_RIGHT": RIGHT}
 
@@ -104,7 +105,7 @@ class HighwayGuardianWrapper(gym.Wrapper):
             if ahead:
                 k = min(ahead, key=lambda j: p[j])
                 x = (v[0], p[k] - p[0] - length, v[k])
-                allowed = _intersect(allowed, admissible_inputs(self.S, x))
+                allowed = intersect_intervals(allowed, admissible_inputs(self.S, x))
         if self._ego_changing():  # keep the follower in the target lane safe whatever it does
             tl = _lane_number(ego.target_lane_index[2], n_lanes)
             behind = [k for k in range(1, len(p)) if lane[k] == tl and p[k] < p[0]]
@@ -113,7 +114,7 @@ class HighwayGuardianWrapper(gym.Wrapper):
                 dt = self.cf.dt
                 gap = (p[0] + dt * v[0]) - (p[k] + dt * v[k]) - length
                 speeds = self.S.lead_speed_intervals(min(v[k] + dt * self.cf.u_max, self.cf.v_max), gap)
-                follower_ok = _intersect(allowed, speeds_to_inputs(self.cf, v[0], speeds))
+                follower_ok = intersect_intervals(allowed, speeds_to_inputs(self.cf, v[0], speeds))
                 if follower_ok:
                     allowed = follower_ok
                 else:
@@ -130,7 +131,7 @@ class HighwayGuardianWrapper(gym.Wrapper):
                 self._step_stats["outside_set"] += 1
                 a_new = self.cf.u_min
             else:
-                a_new = _nearest(allowed, a)
+                a_new = nearest_in_intervals(allowed, a)
             ego.action["acceleration"] = a_new
             if action is None:  # the per-simulation-step call (the meta-action call precedes it)
                 self._step_stats["sim_steps"] += 1
@@ -182,25 +183,6 @@ class HighwayGuardianWrapper(gym.Wrapper):
         sup = EgoSupervisor(prm, self.S, self.config.overapprox)
         verdict = sup.lane_change(p, v, lane, 0, trig, {})
         return bool(verdict.inputs), verdict.reason
-
-
-def _intersect(a, b):
-    out = []
-    for lo1, hi1 in a:
-        for lo2, hi2 in b:
-            lo, hi = max(lo1, lo2), min(hi1, hi2)
-            if lo <= hi:
-                out.append((lo, hi))
-    return out
-
-
-def _nearest(intervals, a: float) -> float:
-    best = None
-    for lo, hi in intervals:
-        c = min(max(a, lo), hi)
-        if best is None or abs(c - a) < abs(best - a):
-            best = c
-    return best
 
 
 # ---- agents and collision fault ------------------------------------------------------------------

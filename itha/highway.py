@@ -109,7 +109,7 @@ def example8_order(p, lane) -> list[int]:
 
 
 # ---- the ego's responsibility-sensitive input sets -----------------------------------
-def _intersect(a, b):
+def intersect_intervals(a, b):
     out = []
     for lo1, hi1 in a:
         for lo2, hi2 in b:
@@ -172,7 +172,7 @@ class EgoSupervisor:
             leads = sorted(leads, key=lambda k: pn[k])[:1]
         for k in leads:
             iv = self.S.input_intervals(v[ego], pn[k] - pn[ego] - length, float(cf.worst_lead_speed(v[k])))
-            allowed = _intersect(allowed, iv)
+            allowed = intersect_intervals(allowed, iv)
             if not allowed:
                 return ChoiceVerdict(trig, [], f"ego too close to car {k} ahead in lane {target}")
         # 2. cars that can get the ego as leader: in the target lane behind it at t+1.
@@ -182,7 +182,7 @@ class EgoSupervisor:
         for k in followers:
             v_fast = min(v[k] + dt * cf.u_max, cf.v_max)
             speeds = self.S.lead_speed_intervals(v_fast, pn[ego] - pn[k] - length)
-            allowed = _intersect(allowed, speeds_to_inputs(cf, v[ego], speeds))
+            allowed = intersect_intervals(allowed, speeds_to_inputs(cf, v[ego], speeds))
             if not allowed:
                 return ChoiceVerdict(trig, [], f"car {k} behind in lane {target} could not stay safe")
         # 3. cars behind the ego in its lane that lose it as their leader.

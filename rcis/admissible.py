@@ -111,7 +111,7 @@ class AdmissibleInputs:
             ranges = q.ranges(axis, u[1 - axis])
             if ranges:
                 v = u.copy()
-                v[axis] = _nearest_in_intervals(ranges, u[axis])
+                v[axis] = nearest_in_intervals(ranges, u[axis])
                 return OverrideResult(self._inside_bounds(v), True, True, self.input_names[axis])
         scale = self.u_upper - self.u_lower
         best = min((_nearest_on_polygon(P / scale, u / scale) for P in polys),
@@ -191,7 +191,7 @@ def _line_interval(P: np.ndarray, fixed_axis: int, value: float):
     return (float(min(pts)), float(max(pts)))
 
 
-def _nearest_in_intervals(ranges, value: float) -> float:
+def nearest_in_intervals(ranges, value: float) -> float:
     best = None
     for lo, hi in ranges:
         cand = min(max(value, lo), hi)
