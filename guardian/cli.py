@@ -173,6 +173,61 @@ def cmd_rollout_highway_env(args) -> int:
     return 0
 
 
+def cmd_highd_generate(args) -> int:
+    from guardian.highd.generate import TrafficParams, generate
+
+    bad = _positive(args, "recordings")
+    if bad or args.minutes <= 0:
+        print(f"guardian highd generate: {bad or '--minutes must be positive'}", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    paths = generate(args.out, args.recordings, args.minutes, args.seed, TrafficParams(lanes=args.lanes),
+                     progress=lambda rid, d, tot: print(f"[highd generate {rid:02d}] frame {d}/{tot}",
+                                                        file=sys.stderr, flush=True),
+                     first_id=args.first_id)
+    result = {"out": str(args.out), "recordings": args.recordings, "files": [str(p) for p in paths],
+              "bytes": sum(p.stat().st_size for p in paths), "seconds": round(time.perf_counter() - t0, 3)}
+    _emit(result, args.json, f"wrote {len(paths)} files ({result['bytes'] / 1e6:.1f} MB) to {args.out}")
+    return 0
+
+
+def cmd_replay(args) -> int:
+    from guardian.highd.reader import HighDFormatError
+    from guardian.highd.replay import ReplayConfig, car_following_params, replay, self_safety_overrides
+
+    if args.workers < 1:
+        print("guardian replay: --workers must be at least 1", file=sys.stderr)
+        return 2
+    cfg = ReplayConfig(seed=args.seed, h_min=args.h_min, u_min=args.u_min, u_max=args.u_max, v_max=args.v_max)
+    try:
+        result = replay(args.path, cfg, contexts=args.contexts, workers=args.workers, scheduler=args.scheduler,
+                        progress=_stderr_counter("replay"), sensitivity=args.sensitivity)
+    except (HighDFormatError, ValueError) as exc:
+        print(f"guardian replay: {exc}", file=sys.stderr)
+        return 2
+    if args.rerun:
+        from guardian.highd.reader import recording_ids
+        from guardian.highd.replay import default_sample
+        from guardian.rerun_log import log_highd_recording
+
+        folder = Path(args.path) if args.path else default_sample()
+        rid = recording_ids(folder)[0]
+        p = car_following_params(cfg, result["dt"], result["disturbance_bounds"])
+        result["rerun"] = log_highd_recording(args.rerun, folder if folder.is_dir() else folder.parent, rid, p,
+                                              lambda d: self_safety_overrides(p, d.v, d.h, d.vL, d.u))
+    r = result["override_rates"]
+    text = (f"{result['recordings']} recording(s): {result['data_points']} data points, {result['trajectories']} "
+            f"trajectories, {result['lane_changes']} lane changes; D = [{result['disturbance_bounds'][0]:.3f}, "
+            f"{result['disturbance_bounds'][1]:.3f}] m/s^2\n"
+            f"override rates on the held-out 20 %: self-safety {100 * r['self_safety']:.2f} %, "
+            f"responsibility trivial {100 * r['responsibility_trivial']:.2f} %, "
+            f"ordered {100 * r['responsibility_ordered']:.2f} %")
+    if args.contexts:
+        text += f"\nself-safety with per-context sets: {100 * result['contexts']['self_safety']:.2f} %"
+    _emit(result, args.json, text)
+    return 0
+
+
 def cmd_rollout(args) -> int:
     from envs.drivers import DRIVERS
     from guardian.rollout import overtake_rollouts
@@ -310,6 +365,32 @@ def build_parser() -> argparse.ArgumentParser:
                    help="jobs a recruiter keeps for itself (0 = (7.9) literally; see README)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_itha_processors)
+    hd = sub.add_parser("highd", help="HighD-format data")
+    hsub = hd.add_subparsers(dest="highd_command", required=True)
+    p = hsub.add_parser("generate", help="write simulated HighD-format recordings (both carriageways, 25 Hz)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--recordings", type=int, default=1)
+    p.add_argument("--minutes", type=float, default=1.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--lanes", type=int, default=3, help="lanes per carriageway")
+    p.add_argument("--first-id", type=int, default=1, help="id of the first recording (NN in the file names)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_highd_generate)
+    p = sub.add_parser("replay", help="override rates of the ITHA guardian on HighD-format data (Table 7.2)")
+    p.add_argument("path", nargs="?", type=Path, default=None,
+                   help="a folder of recordings or one recording's file (default: the shipped sample)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the 80/20 split")
+    p.add_argument("--contexts", action="store_true", help="also calibrate per lane and speed band")
+    p.add_argument("--workers", type=int, default=1, help="local processes, one recording each")
+    p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler")
+    p.add_argument("--sensitivity", action="store_true", help="rates under other open choices")
+    p.add_argument("--h-min", type=float, default=2.0, help="safe headway, bumper to bumper (m)")
+    p.add_argument("--u-min", type=float, default=-6.0, help="ego input bound U (m/s^2)")
+    p.add_argument("--u-max", type=float, default=4.0)
+    p.add_argument("--v-max", type=float, default=60.0)
+    p.add_argument("--rerun", type=Path, default=None, help="record the first recording with its overrides (.rrd)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_replay)
     p = sub.add_parser("serve", help="the guardian as an HTTP JSON service (one estimator per session)")
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=8765)

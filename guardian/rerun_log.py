@@ -169,3 +169,41 @@ class HighwayRecorder:
 
     def close(self) -> None:
         self.rec.flush()
+
+
+# ---- HighD-format recordings ------------------------------------------------------------------------
+def log_highd_recording(path: Path, folder: Path, recording_id: int, params, overrides_of) -> dict:
+    """One recording in image coordinates: lane markings, every vehicle per frame, override events.
+
+    ``overrides_of(data)`` returns a boolean per data point of ``guardian.highd.convert.to_itha``;
+    vehicles with an override at a frame are drawn red and listed in ``events/override``.
+    """
+    from guardian.highd.convert import to_itha
+    from guardian.highd.reader import read_recording
+
+    rec_data = read_recording(folder, recording_id)
+    data = to_itha(rec_data)
+    over = overrides_of(data)
+    flagged = {(int(v), int(f)) for v, f in zip(data.vehicle[over], data.frame[over])}
+    rec = rr.RecordingStream("guardian-highd")
+    rec.save(str(path))
+    length = 450.0
+    marks = rec_data.upper_markings + rec_data.lower_markings
+    rec.log("road/markings", rr.LineStrips2D([[[0.0, m], [length, m]] for m in marks]), static=True)
+    t = rec_data.tracks
+    for frame, rows in t.groupby("frame", sort=True):
+        rec.set_time("frame", sequence=int(frame))
+        ids = rows["id"].to_numpy()
+        red = np.array([(int(i), int(frame)) in flagged for i in ids])
+        centers = np.column_stack([rows["x"] + rows["width"] / 2, rows["y"] + rows["height"] / 2])
+        half = np.column_stack([rows["width"] / 2, rows["height"] / 2])
+        colors = np.where(red[:, None], [[230, 40, 40]], [[60, 120, 220]])
+        rec.log("road/vehicles", rr.Boxes2D(centers=centers, half_sizes=half, colors=colors,
+                                            labels=[str(i) for i in ids]))
+        for i in ids[red]:
+            rec.log("events/override", rr.TextLog(f"frame {frame}: vehicle {i} input not self-safe", level="WARN"))
+    for e in data.lane_changes:
+        rec.set_time("frame", sequence=e.frame)
+        rec.log("events/lane_change", rr.TextLog(f"frame {e.frame}: vehicle {e.vehicle} changes {e.trigger}"))
+    rec.flush()
+    return {"frames": int(t["frame"].nunique()), "overrides": int(over.sum()), "path": str(path)}

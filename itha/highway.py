@@ -148,12 +148,19 @@ class EgoSupervisor:
             out.append(self.lane_change(p, v, lane, ego, trig, next_lanes or {}))
         return out
 
-    def lane_change(self, p, v, lane, ego, trig, announced) -> ChoiceVerdict:
+    def lane_change(self, p, v, lane, ego, trig, announced, lengths=None) -> ChoiceVerdict:
+        """Is the ego's lane change ``trig`` ρ̂-responsible, and with which inputs?
+
+        ``p`` are front-bumper positions along the direction of travel; ``lengths`` the cars'
+        lengths (default: ``car_length`` for all); ``announced`` maps car index to its trigger for
+        the cars before the ego in the order (ordered ρ̂).
+        """
         prm, cf = self.params, self.params.car_following
         target = lane[ego] + LANE_SHIFT[trig]
         if not 1 <= target <= prm.n_lanes:
             return ChoiceVerdict(trig, [], "no such lane")
-        dt, length, n = cf.dt, prm.car_length, len(p)
+        dt, n = cf.dt, len(p)
+        lengths = [prm.car_length] * n if lengths is None else lengths
         pn = [p[k] + dt * v[k] for k in range(n)]
         trivial = self.overapprox == "trivial"
         allowed = admissible_inputs(self.S, (v[ego], math.inf, cf.v_max))  # speed limits only
@@ -171,7 +178,7 @@ class EgoSupervisor:
         if not trivial:
             leads = sorted(leads, key=lambda k: pn[k])[:1]
         for k in leads:
-            iv = self.S.input_intervals(v[ego], pn[k] - pn[ego] - length, float(cf.worst_lead_speed(v[k])))
+            iv = self.S.input_intervals(v[ego], pn[k] - lengths[k] - pn[ego], float(cf.worst_lead_speed(v[k])))
             allowed = intersect_intervals(allowed, iv)
             if not allowed:
                 return ChoiceVerdict(trig, [], f"ego too close to car {k} ahead in lane {target}")
@@ -181,7 +188,7 @@ class EgoSupervisor:
             followers = sorted(followers, key=lambda k: -pn[k])[:1]
         for k in followers:
             v_fast = min(v[k] + dt * cf.u_max, cf.v_max)
-            speeds = self.S.lead_speed_intervals(v_fast, pn[ego] - pn[k] - length)
+            speeds = self.S.lead_speed_intervals(v_fast, pn[ego] - lengths[ego] - pn[k])
             allowed = intersect_intervals(allowed, speeds_to_inputs(cf, v[ego], speeds))
             if not allowed:
                 return ChoiceVerdict(trig, [], f"car {k} behind in lane {target} could not stay safe")
@@ -196,7 +203,7 @@ class EgoSupervisor:
             if not trivial:
                 new_leads = sorted(new_leads, key=lambda k: pn[k])[:1]
             for k in new_leads:
-                x = (v_fast, pn[k] - pn[c] - length, float(cf.worst_lead_speed(v[k])))
+                x = (v_fast, pn[k] - lengths[k] - pn[c], float(cf.worst_lead_speed(v[k])))
                 if not self.S.contains(np.array([x]))[0]:
                     return ChoiceVerdict(trig, [], f"car {c} behind in lane {old} would be exposed to car {k}")
         return ChoiceVerdict(trig, allowed)

@@ -94,3 +94,32 @@ def test_rollout_env_errors(capsys):
     assert "unknown environment 'nope-v0'" in capsys.readouterr().err
     assert main(["rollout", "--env", "highway-v0", "--scenario", "overtake"]) == 2
     assert "exclude" in capsys.readouterr().err
+
+
+def test_highd_generate_and_replay_json(tmp_path, capsys):
+    code, data = run_json(capsys, ["highd", "generate", "--out", str(tmp_path / "d"), "--recordings", "2",
+                                   "--minutes", "0.3", "--seed", "1", "--json"])
+    assert code == 0 and len(data["files"]) == 6
+    code, data = run_json(capsys, ["replay", str(tmp_path / "d"), "--seed", "3", "--workers", "2", "--json",
+                                   "--rerun", str(tmp_path / "r.rrd")])
+    assert code == 0
+    for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
+        assert key in data
+    assert set(data["override_rates"]) == {"self_safety", "responsibility_trivial", "responsibility_ordered"}
+    from guardian.rerun_log import read_entities
+    ents = read_entities(tmp_path / "r.rrd")
+    assert ents.get("/road/vehicles", 0) > 100 and ents.get("/road/markings", 0) == 1
+
+
+def test_replay_refuses_malformed_data_with_exit_2(tmp_path, capsys):
+    assert main(["highd", "generate", "--out", str(tmp_path), "--minutes", "0.2"]) == 0
+    capsys.readouterr()
+    path = tmp_path / "01_tracks.csv"
+    lines = path.read_text().splitlines()
+    lines[5] = lines[5].replace(",", ",,", 1)
+    path.write_text("\n".join(lines) + "\n")
+    assert main(["replay", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "01_tracks.csv" in err and "line" in err
+    assert main(["replay", str(tmp_path / "nowhere")]) == 2
+    assert "no such file or folder" in capsys.readouterr().err

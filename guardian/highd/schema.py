@@ -1,0 +1,43 @@
+"""The HighD file format (SPEC.md part C): columns and their types, per file.
+
+Per recording ``NN``: ``NN_recordingMeta.csv`` (one row), ``NN_tracksMeta.csv`` (one row per
+vehicle), ``NN_tracks.csv`` (one row per vehicle and frame). ``x, y`` are the upper-left corner of
+the bounding box in image coordinates (y points down); ``width`` is the box's extent along x (the
+vehicle's length), ``height`` along y (its width). Direction 1 moves left (upper lanes, negative x
+velocities), direction 2 moves right (lower lanes). Neighbour ids and dhw/thw/ttc are 0 when there
+is none; the min* columns of tracksMeta are -1 when undefined.
+"""
+from __future__ import annotations
+
+INT, FLOAT, STR = "int64", "float64", "string"
+
+RECORDING_META = {
+    "id": INT, "frameRate": INT, "locationId": INT, "speedLimit": FLOAT, "month": INT, "weekDay": STR,
+    "startTime": STR, "duration": FLOAT, "totalDrivenDistance": FLOAT, "totalDrivenTime": FLOAT,
+    "numVehicles": INT, "numCars": INT, "numTrucks": INT, "upperLaneMarkings": STR, "lowerLaneMarkings": STR,
+}
+
+TRACKS_META = {
+    "id": INT, "width": FLOAT, "height": FLOAT, "initialFrame": INT, "finalFrame": INT, "numFrames": INT,
+    "class": STR, "drivingDirection": INT, "traveledDistance": FLOAT, "minXVelocity": FLOAT,
+    "maxXVelocity": FLOAT, "meanXVelocity": FLOAT, "minDHW": FLOAT, "minTHW": FLOAT, "minTTC": FLOAT,
+    "numLaneChanges": INT,
+}
+
+TRACKS = {
+    "frame": INT, "id": INT, "x": FLOAT, "y": FLOAT, "width": FLOAT, "height": FLOAT,
+    "xVelocity": FLOAT, "yVelocity": FLOAT, "xAcceleration": FLOAT, "yAcceleration": FLOAT,
+    "frontSightDistance": FLOAT, "backSightDistance": FLOAT, "dhw": FLOAT, "thw": FLOAT, "ttc": FLOAT,
+    "precedingXVelocity": FLOAT, "precedingId": INT, "followingId": INT, "leftPrecedingId": INT,
+    "leftAlongsideId": INT, "leftFollowingId": INT, "rightPrecedingId": INT, "rightAlongsideId": INT,
+    "rightFollowingId": INT, "laneId": INT,
+}
+
+NEIGHBOUR_COLUMNS = ("precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
+                     "rightPrecedingId", "rightAlongsideId", "rightFollowingId")
+
+FILES = {"recordingMeta": RECORDING_META, "tracksMeta": TRACKS_META, "tracks": TRACKS}
+
+
+def file_name(recording_id: int, kind: str) -> str:
+    return f"{recording_id:02d}_{kind}.csv"

@@ -1,0 +1,108 @@
+"""HighD-format reader: a generated recording round-trips; every malformed case names file, line, column."""
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from guardian.highd.generate import TrafficParams, generate
+from guardian.highd.reader import HighDFormatError, read_recording, recording_ids
+from guardian.highd.schema import TRACKS, TRACKS_META
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    out = tmp_path_factory.mktemp("highd")
+    generate(out, 1, 0.4, seed=3, prm=TrafficParams(warmup=30.0))
+    return out
+
+
+def test_generated_recording_round_trips(generated):
+    assert recording_ids(generated) == [1]
+    rec = read_recording(generated, 1)
+    assert list(rec.tracks.columns) == list(TRACKS) and list(rec.tracks_meta.columns) == list(TRACKS_META)
+    assert rec.frame_rate == 25 and len(rec.upper_markings) == 4 and len(rec.lower_markings) == 4
+    t, m = rec.tracks, rec.tracks_meta.set_index("id")
+    assert rec.meta["numVehicles"] == len(m) == t["id"].nunique()
+    assert (m["numFrames"] == t.groupby("id").size()).all()
+    # direction 1 moves left with negative velocities in the upper lanes, direction 2 the opposite
+    d = m["drivingDirection"].reindex(t["id"]).to_numpy()
+    assert (t["xVelocity"].to_numpy()[d == 1] < 0).all() and (t["xVelocity"].to_numpy()[d == 2] > 0).all()
+    assert set(t["laneId"][d == 1]) <= {2, 3, 4} and set(t["laneId"][d == 2]) <= {6, 7, 8}
+    # the preceding vehicle is in the same lane, ahead in the direction of travel, and dhw is front to front
+    idx = t.set_index(["id", "frame"])
+    rows = t[t["precedingId"] > 0].head(500)
+    lead = idx.loc[list(zip(rows["precedingId"], rows["frame"]))]
+    assert (lead["laneId"].to_numpy() == rows["laneId"].to_numpy()).all()
+    sign = np.sign(rows["xVelocity"].to_numpy())
+    front = np.where(sign > 0, rows["x"] + rows["width"], rows["x"])
+    lead_front = np.where(sign > 0, lead["x"] + lead["width"], lead["x"])
+    assert np.allclose(np.abs(lead_front - front), rows["dhw"], atol=0.03)
+    changes = t.groupby("id")["laneId"].apply(lambda s: int((s.diff().fillna(0) != 0).sum()))
+    assert (m["numLaneChanges"] == changes.reindex(m.index)).all()
+
+
+def _copy(generated, tmp_path):
+    for p in generated.iterdir():
+        shutil.copy(p, tmp_path / p.name)
+    return tmp_path
+
+
+def _edit(folder, kind, fn):
+    path = folder / f"01_{kind}.csv"
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    df = fn(df)
+    df.to_csv(path, index=False)
+    return path
+
+
+CASES = {
+    "missing column": ("tracks", lambda df: df.drop(columns=["ttc"]), r"01_tracks\.csv: missing columns \['ttc'\]"),
+    "extra column": ("tracks", lambda df: df.assign(speed="1"), r"unexpected columns \['speed'\]"),
+    "wrong type": ("tracks", lambda df: df.assign(xVelocity=df["xVelocity"].mask(df.index == 7, "fast")),
+                   r"01_tracks\.csv: line 9, column 'xVelocity': 'fast' is not a number"),
+    "non-integer id": ("tracks", lambda df: df.assign(laneId=df["laneId"].mask(df.index == 3, "2.5")),
+                       r"line 5, column 'laneId': 2\.5 is not an integer"),
+    "NaN": ("tracks", lambda df: df.assign(y=df["y"].mask(df.index == 11, "")),
+            r"01_tracks\.csv: line 13, column 'y': missing value \(NaN\)"),
+    "infinite": ("tracks", lambda df: df.assign(dhw=df["dhw"].mask(df.index == 2, "inf")),
+                 r"line 4, column 'dhw': non-finite value"),
+    "duplicated (id, frame)": ("tracks", lambda df: pd.concat([df.iloc[:6], df.iloc[[5]], df.iloc[6:]]),
+                               r"\(id \d+, frame \d+\) appears on lines 7 and 8"),
+    "frame skip": ("tracks", lambda df: df.drop(index=4), r"track \d+ jumps from frame \d+ to frame \d+"),
+    "unknown id": ("tracks", lambda df: df.assign(id=df["id"].mask(df.index == 0, "9999")),
+                   r"line 2, column 'id': vehicle 9999 is not in 01_tracksMeta\.csv"),
+    "lane outside markings": ("tracks", lambda df: df.assign(laneId=df["laneId"].mask(df.index == 0, "12")),
+                              r"line 2, column 'laneId': lane 12 cannot hold vehicle"),
+    "lane of the other direction": ("tracks", lambda df: df.assign(
+        laneId=df["laneId"].mask(df.index == 0, "7" if df["laneId"].iloc[0] in ("2", "3", "4") else "3")),
+        r"line 2, column 'laneId': lane \d cannot hold vehicle \d+ \(direction \d\)"),
+    "bad markings": ("recordingMeta", lambda df: df.assign(upperLaneMarkings="6.0;x;9.0"),
+                     r"column 'upperLaneMarkings': '6\.0;x;9\.0' is not a ';'-separated list"),
+    "meta duplicate id": ("tracksMeta", lambda df: pd.concat([df, df.iloc[[0]]]), r"01_tracksMeta\.csv: id \d+ appears"),
+    "meta count mismatch": ("tracksMeta", lambda df: df.assign(numFrames=df["numFrames"].mask(df.index == 0, "3")),
+                            r"numFrames 3 / initialFrame \d+ disagree"),
+    "bad direction": ("tracksMeta", lambda df: df.assign(drivingDirection=df["drivingDirection"].mask(df.index == 1, "3")),
+                      r"line 3, column 'drivingDirection': 3 is not 1 or 2"),
+    "recording id mismatch": ("recordingMeta", lambda df: df.assign(id="2"), r"does not match the file name"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_malformed_input_is_refused_with_its_place(generated, tmp_path, case):
+    kind, fn, pattern = CASES[case]
+    folder = _copy(generated, tmp_path)
+    _edit(folder, kind, fn)
+    with pytest.raises(HighDFormatError, match=pattern):
+        read_recording(folder, 1)
+
+
+def test_missing_file_and_empty_folder(generated, tmp_path):
+    folder = _copy(generated, tmp_path)
+    (folder / "01_tracksMeta.csv").unlink()
+    with pytest.raises(HighDFormatError, match=r"01_tracksMeta\.csv: file is missing"):
+        read_recording(folder, 1)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(HighDFormatError, match="no NN_recordingMeta.csv"):
+        recording_ids(empty)

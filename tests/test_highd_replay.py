@@ -1,0 +1,101 @@
+"""Conversion to ITHA data, calibration and override counting; workers and Dask give identical results."""
+import math
+
+import numpy as np
+import pytest
+
+from guardian.highd.convert import to_itha
+from guardian.highd.generate import TrafficParams, generate
+from guardian.highd.reader import read_recording
+from guardian.highd.replay import (ReplayConfig, car_following_params, default_sample, order_statistic_bounds,
+                                   replay, self_safety_overrides)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("highd-replay")
+    generate(out, 2, 0.5, seed=5, prm=TrafficParams(warmup=30.0, inflow=0.45))
+    return out
+
+
+def test_local_states_from_boxes_in_both_directions(folder):
+    rec = read_recording(folder, 1)
+    data = to_itha(rec)
+    t = rec.tracks.set_index(["id", "frame"])
+    lead = np.isfinite(data.h)
+    assert lead.any() and (~lead).any()
+    for k in np.flatnonzero(lead)[:300]:
+        row = t.loc[(data.vehicle[k], data.frame[k])]
+        L = t.loc[(int(row["precedingId"]), data.frame[k])]
+        # dhw is front to front; the bumper gap subtracts the lead's length
+        assert data.h[k] == pytest.approx(row["dhw"] - L["width"], abs=0.03)
+        assert data.vL[k] == pytest.approx(abs(L["xVelocity"]))
+        assert data.v[k] == pytest.approx(abs(row["xVelocity"]))
+    assert set(np.unique(data.direction)) == {1, 2}
+    assert (data.v >= 0).all() and set(np.unique(data.lane)) <= {1, 2, 3}
+
+
+def test_inputs_and_disturbances_are_forward_differences(folder):
+    rec = read_recording(folder, 1)
+    data = to_itha(rec)
+    t = rec.tracks.set_index(["id", "frame"])
+    k = int(np.flatnonzero(np.isfinite(data.d))[10])
+    now, nxt = t.loc[(data.vehicle[k], data.frame[k])], t.loc[(data.vehicle[k], data.frame[k] + 1)]
+    assert data.u[k] == pytest.approx((abs(nxt["xVelocity"]) - abs(now["xVelocity"])) * 25)
+    L0 = t.loc[(int(now["precedingId"]), data.frame[k])]
+    L1 = t.loc[(int(now["precedingId"]), data.frame[k] + 1)]
+    assert data.d[k] == pytest.approx((abs(L1["xVelocity"]) - abs(L0["xVelocity"])) * 25)
+    # a lane change is an event with a snapshot of its direction
+    assert data.lane_changes
+    e = data.lane_changes[0]
+    assert e.lane[e.ego] + (1 if e.trigger == "left" else -1) in (1, 2, 3)
+    assert len(e.p) == len(e.v) == len(e.lane) == len(e.length) > 1
+
+
+def test_order_statistics_follow_the_dissertation():
+    d = np.arange(1, 41, dtype=float)  # N = 40: ⌈0.025 N⌉ = 1, ⌈0.975 N⌉ = 39
+    assert order_statistic_bounds(d, (0.025, 0.975)) == (1.0, 39.0)
+    with pytest.raises(ValueError, match="no lead-disturbance samples"):
+        order_statistic_bounds(np.array([]), (0.025, 0.975))
+
+
+def test_self_safety_override_cases():
+    p = car_following_params(ReplayConfig(), 0.04, (-0.5, 0.5))
+    over = self_safety_overrides(p, v=[30, 30, 30, 30, 30], h=[3, 100, math.inf, math.inf, 100],
+                                 vL=[20, 30, np.nan, np.nan, 30], u=[0, 0, 0, 9.0, -7.0])
+    # closing fast at 3 m; comfortable; free road; free road but u > u_max; u < u_min
+    assert over.tolist() == [True, False, False, True, True]
+
+
+def test_replay_contract_and_rates(folder):
+    r = replay(folder, ReplayConfig(seed=1), contexts=True, sensitivity=True)
+    for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
+        assert key in r
+    lo, hi = r["disturbance_bounds"]
+    assert lo < 0 < hi
+    for v in r["override_rates"].values():
+        assert 0.0 <= v <= 1.0
+    assert r["override_rates"]["responsibility_trivial"] >= r["override_rates"]["responsibility_ordered"]
+    assert "by_context" in r["contexts"] and len(r["sensitivity"]) >= 10
+
+
+def test_workers_and_dask_give_identical_results(folder):
+    base = replay(folder, ReplayConfig(seed=2))
+    two = replay(folder, ReplayConfig(seed=2), workers=2)
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        dsk = replay(folder, ReplayConfig(seed=2), scheduler=cluster.scheduler_address)
+    for other in (two, dsk):
+        for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
+            assert other[key] == base[key]
+
+
+def test_shipped_sample_is_the_default():
+    assert (default_sample() / "01_tracks.csv").exists()
+    r = replay(None)
+    assert r["recordings"] == 1 and r["data_points"] > 10_000
+
+
+def test_speed_above_v_max_is_refused(folder):
+    with pytest.raises(ValueError, match=r"above v_max = 10\.0"):
+        replay(folder, ReplayConfig(v_max=10.0))
