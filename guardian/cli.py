@@ -198,7 +198,8 @@ def cmd_replay(args) -> int:
     if args.workers < 1:
         print("guardian replay: --workers must be at least 1", file=sys.stderr)
         return 2
-    cfg = ReplayConfig(seed=args.seed, h_min=args.h_min, u_min=args.u_min, u_max=args.u_max, v_max=args.v_max)
+    cfg = ReplayConfig(seed=args.seed, h_min=args.h_min, u_min=args.u_min, u_max=args.u_max, v_max=args.v_max,
+                       input_bounds=args.input_bounds)
     try:
         result = replay(args.path, cfg, contexts=args.contexts, workers=args.workers, scheduler=args.scheduler,
                         progress=_stderr_counter("replay"), sensitivity=args.sensitivity)
@@ -212,7 +213,7 @@ def cmd_replay(args) -> int:
 
         folder = Path(args.path) if args.path else default_sample()
         rid = recording_ids(folder)[0]
-        p = car_following_params(cfg, result["dt"], result["disturbance_bounds"])
+        p = car_following_params(cfg, result["dt"], result["disturbance_bounds"], result["input_bounds"])
         result["rerun"] = log_highd_recording(args.rerun, folder if folder.is_dir() else folder.parent, rid, p,
                                               lambda d: self_safety_overrides(p, d.v, d.h, d.vL, d.u))
     r = result["override_rates"]
@@ -388,6 +389,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--u-min", type=float, default=-6.0, help="ego input bound U (m/s^2)")
     p.add_argument("--u-max", type=float, default=4.0)
     p.add_argument("--v-max", type=float, default=60.0)
+    p.add_argument("--input-bounds", choices=["fixed", "data"], default="fixed",
+                   help="U from --u-min/--u-max, or the training inputs' quantiles (per context with --contexts)")
     p.add_argument("--rerun", type=Path, default=None, help="record the first recording with its overrides (.rrd)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_replay)

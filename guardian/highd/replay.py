@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import time
 import tracemalloc
+from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -49,6 +50,13 @@ class ReplayConfig:
     u_min: float = -6.0     # m/s^2, the ego's input bounds U
     u_max: float = 4.0
     v_max: float = 60.0     # m/s; a speed above it is refused as outside the model
+    input_bounds: str = "fixed"  # "fixed": U = [u_min, u_max]; "data": the training inputs' order statistics
+
+    def __post_init__(self):
+        if self.input_bounds not in ("fixed", "data"):
+            raise ValueError(f"input_bounds must be 'fixed' or 'data', got {self.input_bounds!r}")
+        if not 0 < self.test_fraction < 1:
+            raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
 
 
 def default_sample() -> Path:
@@ -65,12 +73,14 @@ class RecordingPart:
     train_d: np.ndarray          # float32
     train_ctx: np.ndarray        # context of each training disturbance (lane, speed band)
     train_u: np.ndarray          # float32 training inputs (for input bounds calibrated on data)
+    train_u_ctx: np.ndarray      # their contexts
     test: ITHAData               # float32 arrays
     test_lane_changes: list
     frame_rate: int
 
 
-def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_max: float) -> RecordingPart:
+def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_max: float,
+                      keep_inputs: bool = True, keep_contexts: bool = True) -> RecordingPart:
     rec = read_recording(Path(folder), rid)
     data = to_itha(rec)
     too_fast = np.flatnonzero(data.v > v_max)
@@ -84,14 +94,20 @@ def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_
     is_test = np.isin(data.vehicle, test_ids)
     train = ~is_test & np.isfinite(data.d)
     train_d = data.d[train].astype(np.float32)
-    train_ctx = contexts_of(data.lane[train], data.v[train]).astype(np.int16)
-    train_u = data.u[~is_test].astype(np.float32)
+    none = np.zeros(0, dtype=np.int16)
+    train_ctx = contexts_of(data.lane[train], data.v[train]).astype(np.int16) if keep_contexts else none
+    train_u = data.u[~is_test].astype(np.float32) if keep_inputs else none.astype(np.float32)
+    train_u_ctx = (contexts_of(data.lane[~is_test], data.v[~is_test]).astype(np.int16)
+                   if keep_inputs and keep_contexts else none)
     test = data.take(is_test)
-    for k in ("v", "h", "vL", "u", "d"):
-        setattr(test, k, getattr(test, k).astype(np.float32))
+    test.lane_changes = []
+    for k, dtype in (("v", np.float32), ("h", np.float32), ("vL", np.float32), ("u", np.float32),
+                     ("d", np.float32), ("vehicle", np.int32), ("frame", np.int32), ("direction", np.int8),
+                     ("lane", np.int8)):
+        setattr(test, k, getattr(test, k).astype(dtype))
     test_lc = [e for e in data.lane_changes if e.vehicle in set(test_ids.tolist())]
     return RecordingPart(rid, len(data), len(vehicles), len(data.lane_changes), train_d, train_ctx, train_u,
-                         test, test_lc, rec.frame_rate)
+                         train_u_ctx, test, test_lc, rec.frame_rate)
 
 
 # ---- calibration and evaluation --------------------------------------------------------------------
@@ -105,10 +121,27 @@ def order_statistic_bounds(d: np.ndarray, quantiles) -> tuple[float, float]:
     return float(part[ks[0]]), float(part[ks[1]])
 
 
-def car_following_params(cfg: ReplayConfig, dt: float, bounds) -> CarFollowingParams:
+def car_following_params(cfg: ReplayConfig, dt: float, bounds, u_bounds=None) -> CarFollowingParams:
     lo, hi = bounds
-    return CarFollowingParams(dt=dt, v_max=cfg.v_max, h_min=cfg.h_min, u_min=cfg.u_min, u_max=cfg.u_max,
-                              d_min=min(lo, -1e-6), d_max=max(hi, 0.0))
+    u_lo, u_hi = (cfg.u_min, cfg.u_max) if u_bounds is None else u_bounds
+    return CarFollowingParams(dt=dt, v_max=cfg.v_max, h_min=cfg.h_min, u_min=min(u_lo, -1e-3),
+                              u_max=max(u_hi, 1e-3), d_min=min(lo, -1e-6), d_max=max(hi, 0.0))
+
+
+@dataclass
+class Training:
+    """What calibration needs from the training split."""
+
+    d: np.ndarray
+    d_ctx: np.ndarray | None = None
+    u: np.ndarray | None = None
+    u_ctx: np.ndarray | None = None
+
+    def u_bounds(self, cfg: ReplayConfig, ctx=None):
+        if cfg.input_bounds == "fixed":
+            return None
+        u = self.u if ctx is None else self.u[self.u_ctx == ctx]
+        return order_statistic_bounds(u, cfg.quantiles) if len(u) >= 200 else order_statistic_bounds(self.u, cfg.quantiles)
 
 
 def self_safety_overrides(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
@@ -149,17 +182,41 @@ def contexts_of(lane: np.ndarray, v: np.ndarray) -> np.ndarray:
     return lane.astype(np.int64) * 10 + band
 
 
-def evaluate(cfg: ReplayConfig, dt: float, train_d, train_ctx, test: ITHAData, events, contexts: bool) -> dict:
-    bounds = order_statistic_bounds(train_d, cfg.quantiles)
-    p = car_following_params(cfg, dt, bounds)
-    over = self_safety_overrides(p, test.v, test.h, test.vL, test.u)
-    out = {"disturbance_bounds": [bounds[0], bounds[1]],
+CHUNK = 1 << 20  # points evaluated at once: bounds the temporaries of the vectorised check
+
+
+def _overrides_chunked(p: CarFollowingParams, test: ITHAData, mask=None) -> np.ndarray:
+    idx = np.arange(len(test.v)) if mask is None else np.flatnonzero(mask)
+    out = np.empty(len(idx), dtype=bool)
+    for a in range(0, len(idx), CHUNK):
+        k = idx[a:a + CHUNK]
+        out[a:a + CHUNK] = self_safety_overrides(p, test.v[k], test.h[k], test.vL[k], test.u[k])
+    return out
+
+
+def _responsibility(p, events, overapprox: str, pool=None) -> int:
+    """Refused lane changes; with a pool (executor or Dask client), in chunks on its workers."""
+    if pool is None or len(events) < 64:
+        return responsibility_overrides(p, events, overapprox)
+    n = 16
+    chunks = [events[k::n] for k in range(n)]
+    if hasattr(pool, "gather"):  # dask.distributed.Client
+        return sum(pool.gather(pool.map(responsibility_overrides, [p] * n, chunks, [overapprox] * n, pure=False)))
+    return sum(pool.map(responsibility_overrides, [p] * n, chunks, [overapprox] * n))
+
+
+def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, events, contexts: bool,
+             pool=None) -> dict:
+    bounds = order_statistic_bounds(train.d, cfg.quantiles)
+    p = car_following_params(cfg, dt, bounds, train.u_bounds(cfg))
+    over = _overrides_chunked(p, test)
+    out = {"disturbance_bounds": [bounds[0], bounds[1]], "input_bounds": [p.u_min, p.u_max],
            "override_rates": {"self_safety": float(over.mean()) if len(over) else 0.0,
-                              "responsibility_trivial": _rate(responsibility_overrides(p, events, "trivial"), events),
-                              "responsibility_ordered": _rate(responsibility_overrides(p, events, "ordered"), events)},
+                              "responsibility_trivial": _rate(_responsibility(p, events, "trivial", pool), events),
+                              "responsibility_ordered": _rate(_responsibility(p, events, "ordered", pool), events)},
            "overrides": {"self_safety": int(over.sum())}}
     if contexts:
-        out["contexts"] = _context_rates(cfg, dt, train_d, train_ctx, test, bounds)
+        out["contexts"] = _context_rates(cfg, dt, train, test, bounds)
     return out
 
 
@@ -167,27 +224,29 @@ def _rate(n: int, events) -> float:
     return n / len(events) if events else 0.0
 
 
-def _context_rates(cfg, dt, train_d, train_ctx, test, global_bounds) -> dict:
+def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
     ctx_test = contexts_of(test.lane, test.v)
     over = np.zeros(len(test.v), dtype=bool)
     table = {}
     for c in np.unique(ctx_test):
         mask = ctx_test == c
-        samples = train_d[train_ctx == c]
+        samples = train.d[train.d_ctx == c]
         bounds = order_statistic_bounds(samples, cfg.quantiles) if len(samples) >= 200 else global_bounds
-        p = car_following_params(cfg, dt, bounds)
-        over[mask] = self_safety_overrides(p, test.v[mask], test.h[mask], test.vL[mask], test.u[mask])
+        p = car_following_params(cfg, dt, bounds, train.u_bounds(cfg, c))
+        over[mask] = _overrides_chunked(p, test, mask)
         lane, band = divmod(int(c), 10)
         table[f"lane{lane}_v{int(SPEED_BANDS[band])}-{SPEED_BANDS[band + 1]:g}"] = {
-            "train_samples": int(len(samples)), "bounds": list(bounds), "test_points": int(mask.sum()),
+            "train_samples": int(len(samples)), "bounds": list(bounds), "input_bounds": [p.u_min, p.u_max],
+            "test_points": int(mask.sum()),
             "self_safety": float(over[mask].mean())}
     return {"self_safety": float(over.mean()) if len(over) else 0.0, "by_context": table,
             "note": "contexts with fewer than 200 training samples use the single-context bounds"}
 
 
 # ---- the whole replay ---------------------------------------------------------------------------------
-def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str | None, progress):
-    args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max) for rid in ids]
+def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str | None, progress,
+                    keep_inputs: bool, keep_contexts: bool):
+    args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max, keep_inputs, keep_contexts) for rid in ids]
     if scheduler:
         from dask.distributed import Client, as_completed
 
@@ -212,6 +271,20 @@ def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str
             yield part
 
 
+@contextmanager
+def _pool(workers: int, scheduler: str | None):
+    if scheduler:
+        from dask.distributed import Client
+
+        with Client(scheduler) as client:
+            yield client
+    elif workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as ex:
+            yield ex
+    else:
+        yield None
+
+
 def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), contexts: bool = False,
            workers: int = 1, scheduler: str | None = None, progress=None, sensitivity: bool = False,
            measure_memory: bool = False) -> dict:
@@ -222,26 +295,35 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     ids = recording_ids(folder)
     if folder.is_file():
         folder = folder.parent
-    parts = sorted(_map_recordings(folder, ids, cfg, workers, scheduler, progress), key=lambda q: q.recording)
+    keep_inputs = sensitivity or cfg.input_bounds == "data"
+    parts = sorted(_map_recordings(folder, ids, cfg, workers, scheduler, progress, keep_inputs, contexts),
+                   key=lambda q: q.recording)
+    t_map = time.perf_counter() - t0
     rates = {q.frame_rate for q in parts}
     if len(rates) != 1:
         raise ValueError(f"recordings have different frame rates {sorted(rates)}; replay them separately")
     dt = 1.0 / rates.pop()
-    train_d = np.concatenate([q.train_d for q in parts])
+    train = Training(np.concatenate([q.train_d for q in parts]),
+                     np.concatenate([q.train_ctx for q in parts]),
+                     np.concatenate([q.train_u for q in parts]),
+                     np.concatenate([q.train_u_ctx for q in parts]))
     test = _concat([q.test for q in parts])
     events = [e for q in parts for e in q.test_lane_changes]
-    train_ctx = np.concatenate([q.train_ctx for q in parts]) if contexts else None
+    counts = [(q.points, q.trajectories, q.lane_changes) for q in parts]
+    n_parts = len(parts)
+    del parts  # the concatenated arrays are all that is needed from here on
     result = {
-        "recordings": len(parts), "data_points": int(sum(q.points for q in parts)),
-        "trajectories": int(sum(q.trajectories for q in parts)),
-        "lane_changes": int(sum(q.lane_changes for q in parts)),
+        "recordings": n_parts, "data_points": int(sum(c[0] for c in counts)),
+        "trajectories": int(sum(c[1] for c in counts)), "lane_changes": int(sum(c[2] for c in counts)),
         "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
-        "train_disturbance_samples": int(len(train_d)), "dt": dt, "config": asdict(cfg),
+        "train_disturbance_samples": int(len(train.d)), "dt": dt, "config": asdict(cfg),
     }
-    result.update(evaluate(cfg, dt, train_d, train_ctx, test, events, contexts))
-    if sensitivity:
-        train_u = np.concatenate([q.train_u for q in parts])
-        result["sensitivity"] = sensitivity_table(cfg, dt, train_d, train_u, test, events)
+    t1 = time.perf_counter()
+    with _pool(workers, scheduler) as pool:
+        result.update(evaluate(cfg, dt, train, test, events, contexts, pool))
+        if sensitivity:
+            result["sensitivity"] = sensitivity_table(cfg, dt, train, test, events, pool)
+    result["timings"] = {"read_convert_split": round(t_map, 3), "evaluate": round(time.perf_counter() - t1, 3)}
     result["seconds"] = round(time.perf_counter() - t0, 3)
     if measure_memory:
         result["peak_traced_memory_mb"] = round(tracemalloc.get_traced_memory()[1] / 1e6, 1)
@@ -255,17 +337,19 @@ def _concat(items) -> ITHAData:
                     **{k: np.concatenate([getattr(i, k) for i in items]) for k in keys})
 
 
-def sensitivity_table(cfg: ReplayConfig, dt: float, train_d, train_u, test: ITHAData, events) -> list[dict]:
+def sensitivity_table(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, events,
+                      pool=None) -> list[dict]:
     """The rates when one open choice changes at a time."""
     variants = [("baseline", {})]
     variants += [(f"h_min={h}", {"h_min": h}) for h in (1.0, 5.0, 10.0)]
-    variants += [(f"U=[{a},{b}]", {"u_min": a, "u_max": b}) for a, b in ((-3.0, 2.0), (-4.0, 3.0), (-9.0, 6.0))]
-    u_lo, u_hi = order_statistic_bounds(train_u, cfg.quantiles)
-    variants.append((f"U=training quantiles [{u_lo:g},{u_hi:g}]", {"u_min": min(u_lo, -1e-3), "u_max": max(u_hi, 1e-3)}))
+    variants += [(f"U=[{a},{b}]", {"u_min": a, "u_max": b, "input_bounds": "fixed"})
+                 for a, b in ((-3.0, 2.0), (-4.0, 3.0), (-9.0, 6.0))]
+    variants.append(("U=training quantiles", {"input_bounds": "data"}))
     variants += [(f"quantiles={q}", {"quantiles": q}) for q in ((0.01, 0.99), (0.05, 0.95), (0.1, 0.9))]
     rows = []
     for name, change in variants:
         c = replace(cfg, **change)
-        r = evaluate(c, dt, train_d, None, test, events, contexts=False)
-        rows.append({"variant": name, "disturbance_bounds": r["disturbance_bounds"], **r["override_rates"]})
+        r = evaluate(c, dt, train, test, events, contexts=False, pool=pool)
+        rows.append({"variant": name, "disturbance_bounds": r["disturbance_bounds"],
+                     "input_bounds": r["input_bounds"], **r["override_rates"]})
     return rows
