@@ -103,6 +103,45 @@ def local_states(params: HighwayParams, p, v, lane) -> np.ndarray:
     return np.array([local_state(params, p, v, lane, i) for i in range(len(p))])
 
 
+def step_global(params: HighwayParams, p, v, lane, inputs, triggers):
+    """(B.1): one step of every car's global state."""
+    dt = params.car_following.dt
+    return ([p[k] + dt * v[k] for k in range(len(p))], [v[k] + dt * inputs[k] for k in range(len(p))],
+            [lane[k] + LANE_SHIFT[triggers[k]] for k in range(len(p))])
+
+
+def resolution(params: HighwayParams, p, v, lane, triggers) -> list[frozenset]:
+    """ρ_i for every car: the lane-changing cars that change whom i follows at the next step.
+
+    Car j (τ_j ≠ stay) is in ρ_i if j = i, or if i's leader at t+1 differs from the one it would have
+    had had j kept its lane (j leaves in front of i, or moves in front of it).
+    """
+    zeros = [0.0] * len(p)
+    pn, _, ln = step_global(params, p, v, lane, zeros, triggers)
+    rho = []
+    for i in range(len(p)):
+        actual = leader(pn, ln, i)
+        s = set()
+        for j, tau in enumerate(triggers):
+            if tau == STAY:
+                continue
+            if j == i:
+                s.add(j)
+                continue
+            counterfactual = list(ln)
+            counterfactual[j] = lane[j]
+            if leader(pn, counterfactual, i) != actual:
+                s.add(j)
+        rho.append(frozenset(s))
+    return rho
+
+
+def reset_state(params: HighwayParams, p, v, lane, inputs, triggers, i: int):
+    """``R_i``: car i's local state after the step (the leader's new speed uses its input)."""
+    pn, vn, ln = step_global(params, p, v, lane, inputs, triggers)
+    return local_state(params, pn, vn, ln, i)
+
+
 def example8_order(p, lane) -> list[int]:
     """Example 8's order (as SPEC.md fixes it): ahead first; aligned cars, slower (lower) lane first."""
     return sorted(range(len(p)), key=lambda i: (-p[i], lane[i], i))

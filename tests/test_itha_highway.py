@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from itha.car_following import CarFollowingParams, MaximalSet, load_or_build
-from itha.highway import (LANE_SHIFT, STAY, EgoSupervisor, HighwayParams, best_input, example8_order,
-                          highway_experiment, initial_traffic, leader, local_states)
+from itha.highway import (LANE_SHIFT, LEFT, STAY, EgoSupervisor, HighwayParams, best_input, example8_order,
+                          highway_experiment, initial_traffic, leader, local_states, reset_state, resolution)
 
 CF = CarFollowingParams()
 SMALL = HighwayParams(n_lanes=3, n_cars=5, ego_lane=2, road_window=(-30.0, 60.0))
@@ -119,6 +119,22 @@ def test_qp_of_7_7_matches_cvxpy():
         prob.solve()
         assert cost == pytest.approx(prob.value, rel=1e-5, abs=1e-5)
         assert u == pytest.approx(float(U.value[0]), abs=1e-3)
+
+
+def test_resolution_and_resets_of_appendix_b():
+    prm = HighwayParams(n_lanes=3, car_length=5.0)
+    # car 0 in lane 2 behind car 1; car 2 in lane 3 behind car 0's position; car 3 in lane 2 behind car 0
+    p, v, lane = [0.0, 30.0, -5.0, -40.0], [10.0, 10.0, 10.0, 10.0], [2, 2, 3, 2]
+    rho = resolution(prm, p, v, lane, [LEFT, STAY, STAY, STAY])
+    assert rho[0] == {0}                   # the ego resets itself
+    assert rho[2] == {0}                   # it becomes car 2's leader in lane 3
+    assert rho[3] == {0}                   # car 3 loses it as leader (now follows car 1)
+    assert rho[1] == frozenset()           # car 1 is ahead: its leader does not change
+    assert resolution(prm, p, v, lane, [STAY] * 4) == [frozenset()] * 4  # Assumption 2
+    x = reset_state(prm, p, v, lane, [1.0, 0.0, 0.0, 0.0], [LEFT, STAY, STAY, STAY], 2)
+    assert x == pytest.approx((10.0, 5.0 - 5.0 + 0.0 + 0.1 * 10 - 0.1 * 10, 10.1))
+    x3 = reset_state(prm, p, v, lane, [0.0] * 4, [LEFT, STAY, STAY, STAY], 3)
+    assert x3 == pytest.approx((10.0, 30.0 + 40.0 - 5.0, 10.0))
 
 
 def test_order_of_example_8():
