@@ -127,6 +127,15 @@ def headway_floor(p: CarFollowingParams, v, h, vL):
     return floor
 
 
+def _boundary(low_side, top: float) -> tuple[float, float]:
+    """Bisection on ``[0, top]`` for a predicate true below a threshold: ``(last true, first false)``."""
+    lo, hi = 0.0, top
+    for _ in range(SPEED_BISECTIONS):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if low_side(mid) else (lo, mid)
+    return lo, hi
+
+
 class MaximalSet:
     """The maximal RCIS of (7.3) in closed form (see the module docstring)."""
 
@@ -145,24 +154,6 @@ class MaximalSet:
         lead_ok = (vL >= 0) & (vL <= p.v_max) & (headway_floor(p, v, hf, np.clip(vL, 0, p.v_max)) >= p.h_min)
         return ok & (free | lead_ok)
 
-    def max_speed(self, h, vL) -> np.ndarray:
-        """``sup {v in [0, v_max] : (v, h, v_L) in C}``; -inf where no speed is safe."""
-        p = self.params
-        h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(h, vL))
-        free = np.isposinf(h)
-        hf = np.where(free, 0.0, h)
-        vLc = np.clip(vL, 0, p.v_max)
-        safe = lambda s: headway_floor(p, s, hf, vLc) >= p.h_min + INNER  # noqa: E731 - monotone in s
-        lo, hi = np.zeros(h.shape), np.full(h.shape, p.v_max)
-        top_ok = safe(hi)
-        for _ in range(SPEED_BISECTIONS):
-            mid = (lo + hi) / 2
-            good = safe(mid)
-            lo, hi = np.where(good, mid, lo), np.where(good, hi, mid)
-        out = np.where(top_ok, p.v_max, lo)
-        out = np.where(safe(np.zeros(h.shape)) & (vL >= 0) & (vL <= p.v_max), out, -np.inf)
-        return np.where(free, p.v_max, out)
-
     def min_lead_speed(self, v: float, h: float) -> float:
         """``inf {v_L in [0, v_max] : (v, h, v_L) in C}``; inf where none is."""
         p = self.params
@@ -175,11 +166,7 @@ class MaximalSet:
             return 0.0
         if not safe(p.v_max):
             return math.inf
-        lo, hi = 0.0, p.v_max
-        for _ in range(SPEED_BISECTIONS):
-            mid = (lo + hi) / 2
-            lo, hi = (lo, mid) if safe(mid) else (mid, hi)
-        return hi
+        return _boundary(lambda s: not safe(s), p.v_max)[1]
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         """Ego speeds v with ``(v, h, vL)`` in C."""
@@ -193,11 +180,7 @@ class MaximalSet:
             return []
         if safe(p.v_max):
             return [(0.0, p.v_max)]
-        lo, hi = 0.0, p.v_max
-        for _ in range(SPEED_BISECTIONS):
-            mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if safe(mid) else (lo, mid)
-        return [(0.0, lo)]
+        return [(0.0, _boundary(safe, p.v_max)[0])]
 
     def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]:
         """Lead speeds v_L with ``(v, h, v_L)`` in C."""

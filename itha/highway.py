@@ -90,17 +90,23 @@ def leader(p, lane, i: int, lane_of_i=None, exclude=()) -> int:
     return best
 
 
-def local_state(params: HighwayParams, p, v, lane, i: int):
-    """(B.3) for car i."""
+def leaders(p, lane) -> list[int]:
+    """(B.2) for every car."""
+    return [leader(p, lane, i) for i in range(len(p))]
+
+
+def local_state(params: HighwayParams, p, v, lane, i: int, L: int | None = None):
+    """(B.3) for car i (``L``: its leader, if already known)."""
     cf = params.car_following
-    L = leader(p, lane, i)
+    L = leader(p, lane, i) if L is None else L
     if L < 0:
         return (v[i], math.inf, cf.v_max)
     return (v[i], p[L] - p[i] - params.car_length, v[L])
 
 
-def local_states(params: HighwayParams, p, v, lane) -> np.ndarray:
-    return np.array([local_state(params, p, v, lane, i) for i in range(len(p))])
+def local_states(params: HighwayParams, p, v, lane, lead=None) -> np.ndarray:
+    lead = leaders(p, lane) if lead is None else lead
+    return np.array([local_state(params, p, v, lane, i, lead[i]) for i in range(len(p))])
 
 
 def step_global(params: HighwayParams, p, v, lane, inputs, triggers):
@@ -354,24 +360,20 @@ def run_highway_episode(prm: HighwayParams, S, overapprox: str, steps: int, rng:
             infeasible += 1
             pick = (STAY, clip_input(cf, v[0], cf.u_min), math.nan)
         trig, u_ego, _ = pick
+        old_leaders = leaders(p, lane)
         acc = [u_ego]
         for i in range(1, n):
-            L = leader(p, lane, i)
-            gap = math.inf if L < 0 else p[L] - p[i] - prm.car_length
-            vl = cf.v_max if L < 0 else v[L]
+            _, gap, vl = local_state(prm, p, v, lane, i, old_leaders[i])
             acc.append(clip_input(cf, v[i], idm_acceleration(prm, v[i], gap, vl, desired[i])))
-        old_leaders = [leader(p, lane, i) for i in range(n)]
         if record:
             frames.append({"t": t, "p": list(p), "v": list(v), "lane": list(lane), "trigger": trig,
                            "u": u_ego, "verdicts": [(vd.trigger, bool(vd.inputs), vd.reason) for vd in verdicts]})
-        p = [p[i] + cf.dt * v[i] for i in range(n)]
-        v = [v[i] + cf.dt * acc[i] for i in range(n)]
-        lane = list(lane)
-        lane[0] += LANE_SHIFT[trig]
+        p, v, lane = step_global(prm, p, v, lane, acc, [trig] + [STAY] * (n - 1))
         lane_changes += trig != STAY
-        X = local_states(prm, p, v, lane)
+        new_leaders = leaders(p, lane)
+        X = local_states(prm, p, v, lane, new_leaders)
         inside = S.contains(X)
-        triggered = [i for i in range(n) if trig != STAY and leader(p, lane, i) != old_leaders[i]]
+        triggered = [i for i in range(n) if trig != STAY and new_leaders[i] != old_leaders[i]]
         unsafe += (not inside[0]) + sum(1 for i in triggered if i != 0 and not inside[i])
         collisions += int(np.sum(X[:, 1] < 0))
     return HighwayEpisode(p[0], unsafe, lane_changes, collisions, infeasible, frames)

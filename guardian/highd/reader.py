@@ -197,14 +197,16 @@ def _check_tracks(path: Path, rec: Recording) -> None:
         r = unknown[0]
         raise HighDFormatError(f"{path}: line {_line(r)}, column 'id': vehicle {ids[r]} is not in "
                                f"{file_name(rec.id, 'tracksMeta')}")
-    counts = pd.Series(ids).value_counts()
-    firsts = pd.Series(frames).groupby(ids).min()
-    for vid, row in known.iterrows():
-        n = int(counts.get(vid, 0))
-        if n != int(row["numFrames"]) or (n and int(firsts[vid]) != int(row["initialFrame"])):
-            raise HighDFormatError(f"{rec.folder / file_name(rec.id, 'tracksMeta')}: vehicle {vid}: numFrames "
-                                   f"{int(row['numFrames'])} / initialFrame {int(row['initialFrame'])} disagree "
-                                   f"with {path.name} ({n} frames from {int(firsts.get(vid, -1))})")
+    counts = pd.Series(ids).value_counts().reindex(known.index, fill_value=0)
+    firsts = pd.Series(frames).groupby(ids).min().reindex(known.index)
+    wrong = (counts != known["numFrames"]) | ((counts > 0) & (firsts != known["initialFrame"]))
+    if wrong.any():
+        vid = wrong.index[np.argmax(wrong.to_numpy())]
+        row = known.loc[vid]
+        first = int(firsts[vid]) if counts[vid] else -1
+        raise HighDFormatError(f"{rec.folder / file_name(rec.id, 'tracksMeta')}: vehicle {vid}: numFrames "
+                               f"{int(row['numFrames'])} / initialFrame {int(row['initialFrame'])} disagree "
+                               f"with {path.name} ({int(counts[vid])} frames from {first})")
     direction = known["drivingDirection"].reindex(ids).to_numpy()
     lanes = t["laneId"].to_numpy()
     for d in (1, 2):

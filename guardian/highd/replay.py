@@ -105,7 +105,8 @@ def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_
                      ("d", np.float32), ("vehicle", np.int32), ("frame", np.int32), ("direction", np.int8),
                      ("lane", np.int8)):
         setattr(test, k, getattr(test, k).astype(dtype))
-    test_lc = [e for e in data.lane_changes if e.vehicle in set(test_ids.tolist())]
+    test_set = set(test_ids.tolist())
+    test_lc = [e for e in data.lane_changes if e.vehicle in test_set]
     return RecordingPart(rid, len(data), len(vehicles), len(data.lane_changes), train_d, train_ctx, train_u,
                          train_u_ctx, test, test_lc, rec.frame_rate)
 
