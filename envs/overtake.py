@@ -29,6 +29,41 @@ DEFAULT_CONFIG = {
 }
 
 
+DISTURBANCE_MODES = ("random", "adversarial")
+
+
+def disturbance_box(p: OvertakeParams) -> tuple[np.ndarray, np.ndarray]:
+    """The box of ``w = [w_ex, w_ey, w_Lx, w_Delta]`` (Table 6.1)."""
+    return (np.array([p.w_ex_bounds[0], p.w_ey_bounds[0], p.w_Lx_bounds[0], p.w_delta_bounds[0]]),
+            np.array([p.w_ex_bounds[1], p.w_ey_bounds[1], p.w_Lx_bounds[1], p.w_delta_bounds[1]]))
+
+
+def draw_disturbance(p: OvertakeParams, mode: str, x, rng: np.random.Generator) -> np.ndarray:
+    """One disturbance ``w``: uniform in its box, or the adversarial vertex at state ``x``.
+
+    Adversarial: while the ego is behind (``h > 0``) the lead brakes as hard as its
+    intention allows and the ego's noise speeds it up; once ahead, the reverse. The
+    ego's lateral noise always pushes it towards the right lane.
+    """
+    lo, hi = disturbance_box(p)
+    if mode == "random":
+        return rng.uniform(lo, hi)
+    if mode != "adversarial":
+        raise ValueError(f"disturbance must be one of {DISTURBANCE_MODES}, got {mode!r}")
+    behind = x[2] > 0
+    return np.array([hi[0] if behind else lo[0], lo[1], lo[2] if behind else hi[2], lo[3] if behind else hi[3]])
+
+
+def sample_initial_state(box, region, rng: np.random.Generator, who: str) -> np.ndarray:
+    """A state uniform in ``box`` (and inside ``region``, a ``rcis.Region``, when given)."""
+    lo, hi = (np.asarray(v, dtype=float) for v in box)
+    for _ in range(10_000):
+        x = rng.uniform(lo, hi)
+        if region is None or region.contains(x):
+            return x
+    raise RuntimeError(f"{who}: no initial state of initial_box lies in initial_region")
+
+
 class OvertakeEnv(gym.Env):
     metadata = {"render_modes": []}
 
@@ -43,27 +78,16 @@ class OvertakeEnv(gym.Env):
         models = intention_models(p)
         if name not in ("aggressive", "cautious"):
             raise ValueError(f"OvertakeEnv: intention must be 'aggressive' or 'cautious', got {name!r}")
-        if self.config["disturbance"] not in ("random", "adversarial"):
+        if self.config["disturbance"] not in DISTURBANCE_MODES:
             raise ValueError(f"OvertakeEnv: disturbance must be 'random' or 'adversarial', "
                              f"got {self.config['disturbance']!r}")
         self.model = models[name]
         self.safe = safe_set(p)
-        self._w_lo = np.array([p.w_ex_bounds[0], p.w_ey_bounds[0], p.w_Lx_bounds[0], p.w_delta_bounds[0]])
-        self._w_hi = np.array([p.w_ex_bounds[1], p.w_ey_bounds[1], p.w_Lx_bounds[1], p.w_delta_bounds[1]])
         self.action_space = gym.spaces.Box(np.array([p.a_ex_bounds[0], p.v_ey_bounds[0]]),
                                            np.array([p.a_ex_bounds[1], p.v_ey_bounds[1]]), dtype=np.float64)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(4,), dtype=np.float64)
         self.state = None
         self.steps = 0
-
-    def _sample_initial(self) -> np.ndarray:
-        lo, hi = (np.asarray(v, dtype=float) for v in self.config["initial_box"])
-        region = self.config["initial_region"]
-        for _ in range(10_000):
-            x = self.np_random.uniform(lo, hi)
-            if region is None or region.contains(x):
-                return x
-        raise RuntimeError("OvertakeEnv: no initial state of initial_box lies in initial_region")
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
@@ -73,19 +97,11 @@ class OvertakeEnv(gym.Env):
             if x.shape != (4,) or not np.all(np.isfinite(x)):
                 raise ValueError(f"OvertakeEnv.reset: state must be 4 finite numbers, got {options['state']}")
         else:
-            x = self._sample_initial()
+            x = sample_initial_state(self.config["initial_box"], self.config["initial_region"],
+                                     self.np_random, "OvertakeEnv")
         self.state = x
         self.steps = 0
         return x.copy(), {"intention": self.model.name, "unsafe": not self.safe.contains(x)}
-
-    def _disturbance(self) -> np.ndarray:
-        if self.config["disturbance"] == "random":
-            return self.np_random.uniform(self._w_lo, self._w_hi)
-        v, y, h, vl = self.state
-        behind = h > 0
-        lo, hi = self._w_lo, self._w_hi
-        return np.array([hi[0] if behind else lo[0], lo[1],
-                         lo[2] if behind else hi[2], lo[3] if behind else hi[3]])
 
     def step(self, action):
         if self.state is None:
@@ -96,7 +112,7 @@ class OvertakeEnv(gym.Env):
         if not self.action_space.contains(u):
             raise ValueError(f"OvertakeEnv.step: action {u.tolist()} is outside U_e "
                              f"[{self.action_space.low.tolist()}, {self.action_space.high.tolist()}]")
-        w = self._disturbance()
+        w = draw_disturbance(self.params, self.config["disturbance"], self.state, self.np_random)
         x = self.model.system.step(self.state, u, w)
         self.state = x
         self.steps += 1

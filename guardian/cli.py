@@ -146,29 +146,65 @@ def cmd_itha_processors(args) -> int:
 
 def cmd_rollout_highway_env(args) -> int:
     import gymnasium as gym
-    import highway_env  # noqa: F401 - registers the environments
 
-    from envs.highway_guard import highway_rollouts
+    import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
+    import highway_env  # noqa: F401 - registers the environments
+    from envs.agents import AGENTS
+    from envs.highway_overtake import ConfigError
+    from guardian.rollout import OVERTAKE_ENV, highway_rollouts
 
     if args.env not in gym.registry:
-        known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "roundabout")))
-        print(f"guardian rollout: unknown environment {args.env!r}; highway-env ids: {', '.join(known)}",
+        known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "roundabout", "guardian/")))
+        print(f"guardian rollout: unknown environment {args.env!r}; ids: {', '.join(known)}", file=sys.stderr)
+        return 2
+    if args.agent not in AGENTS:
+        print(f"guardian rollout: unknown agent {args.agent!r}; choose from {', '.join(AGENTS)}", file=sys.stderr)
+        return 2
+    overtake = args.env == OVERTAKE_ENV
+    if args.agent in ("mpc", "bad", "careful") and not (overtake and args.action in (None, "continuous")):
+        print(f"guardian rollout: the {args.agent} driver drives {OVERTAKE_ENV} with --action continuous",
               file=sys.stderr)
         return 2
+    if args.traffic is not None and args.traffic < 0:
+        print(f"guardian rollout: --traffic must be >= 0, got {args.traffic}", file=sys.stderr)
+        return 2
+    library = _library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
+    intentions = (("aggressive", "cautious") if args.intention == "all" else (args.intention,)) if overtake else (None,)
+    from guardian.wrapper import GuardianConfig
 
-    recorder = None
-    if args.rerun:
-        from guardian.rerun_log import HighwayRecorder
-        recorder = HighwayRecorder(args.rerun, 4)
-    result = highway_rollouts(args.env, args.agent, args.episodes, args.seed, guardian=not args.no_guardian,
-                              progress=_stderr_counter(f"rollout {args.env}"), recorder=recorder)
-    if recorder:
-        recorder.close()
-    result["env"], result["agent"], result["guardian"] = args.env, args.agent, not args.no_guardian
-    text = (f"{args.env} {args.agent} guardian={'off' if args.no_guardian else 'on'} episodes={result['episodes']} "
-            f"steps={result['steps']} collisions={result['collisions']} "
-            f"ego_at_fault={result['ego_at_fault_collisions']} override_steps={result['override_steps']} "
-            f"distance_mean={result['distance_mean']:.1f} m")
+    gcfg = GuardianConfig(use_intention=not args.no_intention, conflict=args.conflict)
+    runs = []
+    for k, intention in enumerate(intentions):
+        recorder = None
+        if args.rerun and k == 0:
+            from guardian.rerun_log import GuardianRecorder
+            recorder = GuardianRecorder(args.rerun)
+        label = f"rollout {args.env}" + (f" {intention}" if intention else "")
+        try:
+            r = highway_rollouts(args.env, args.agent, args.episodes, args.seed, action=args.action,
+                                 guardian=not args.no_guardian, library=library, intention=intention,
+                                 disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
+                                 progress=_stderr_counter(label), recorder=recorder,
+                                 video_dir=(args.video / (intention or "all")) if args.video else None)
+        except ConfigError as exc:
+            print(f"guardian rollout: {exc}", file=sys.stderr)
+            return 2
+        finally:
+            if recorder:
+                recorder.close()
+        r.update({"env": args.env, "agent": args.agent, "action": args.action or "default",
+                  "guardian": not args.no_guardian, "intention_aware": not args.no_guardian and not args.no_intention,
+                  "disturbance": args.disturbance})
+        if intention:
+            r["intention"] = intention
+        runs.append(r)
+    result = runs[0] if len(runs) == 1 else _combine(runs)
+    text = "\n".join(
+        f"{args.env} {r.get('intention', '')} {args.agent} guardian={'on' if r['guardian'] else 'off'} "
+        f"episodes={r['episodes']} steps={r['steps']} collisions={r['collisions']} "
+        f"ego_at_fault={r['ego_at_fault_collisions']} override_steps={r['override_steps']} "
+        f"safety_violations={r.get('safety_violations', '-')} model_violation_steps={r['model_violation_steps']} "
+        f"conflict_steps={r['conflict_steps']} distance_mean={r['distance_mean']:.1f} m" for r in runs)
     _emit(result, args.json, text)
     return 0
 
@@ -277,13 +313,17 @@ def cmd_serve(args) -> int:
 
 
 def _combine(runs: list) -> dict:
-    keys = ("episodes", "steps", "safety_violations", "override_steps", "failsafe_steps", "wrong_identifications")
-    out = {k: sum(r[k] for r in runs) for k in keys}
-    ident = [(r["mean_steps_to_identify_intention"], r["identified_fraction"] * r["episodes"]) for r in runs
-             if r["mean_steps_to_identify_intention"] is not None]
-    n_ident = sum(n for _, n in ident)
-    out["mean_steps_to_identify_intention"] = sum(m * n for m, n in ident) / n_ident if n_ident else None
-    out["identified_fraction"] = n_ident / out["episodes"]
+    """One record for several runs: counts summed, means weighted by episodes, the runs kept under "runs"."""
+    out = {k: sum(r[k] for r in runs) for k, v in runs[0].items()
+           if isinstance(v, int) and not isinstance(v, bool) and all(k in r for r in runs)}
+    if all("distance_mean" in r for r in runs):
+        out["distance_mean"] = sum(r["distance_mean"] * r["episodes"] for r in runs) / out["episodes"]
+    if all("identified_fraction" in r for r in runs):
+        ident = [(r["mean_steps_to_identify_intention"], r["identified_fraction"] * r["episodes"]) for r in runs
+                 if r["mean_steps_to_identify_intention"] is not None]
+        n_ident = sum(n for _, n in ident)
+        out["mean_steps_to_identify_intention"] = sum(m * n for m, n in ident) / n_ident if n_ident else None
+        out["identified_fraction"] = n_ident / out["episodes"]
     out["runs"] = runs
     return out
 
@@ -328,9 +368,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", choices=["overtake"], default=None,
                    help="the overtake scenario (the default when --env is not given)")
     p.add_argument("--env", default=None,
-                   help="a highway-env id (e.g. highway-v0, highway-fast-v0): ITHA guardian on highway-env")
-    p.add_argument("--agent", choices=["random", "reckless", "idle"], default="random",
-                   help="the agent driving a highway-env environment (with --env)")
+                   help="a highway-env id: guardian/HighwayOvertake-v0 (lead part + ITHA), highway-v0, "
+                        "highway-fast-v0, ... (ITHA)")
+    p.add_argument("--agent", default="random",
+                   help="with --env: random | reckless | idle | mpc | bad | careful (the MPC drivers: "
+                        "HighwayOvertake, continuous)")
+    p.add_argument("--action", choices=["continuous", "meta"], default=None,
+                   help="with --env: the agent's action type (default: the env's own)")
+    p.add_argument("--traffic", type=int, default=None, help="with --env: number of other cars")
+    p.add_argument("--video", type=Path, default=None, help="with --env: write each episode as MP4 into this folder")
+    p.add_argument("--conflict", choices=["lead", "traffic"], default="lead",
+                   help="with --env: which part wins when the lead's and the traffic's sets do not intersect")
     p.add_argument("--intention", choices=["aggressive", "cautious", "all"], default="cautious")
     p.add_argument("--driver", choices=["mpc", "bad", "careful", "random", "all"], default="mpc")
     p.add_argument("--episodes", type=int, default=10)

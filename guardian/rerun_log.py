@@ -207,3 +207,88 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
         rec.log("events/lane_change", rr.TextLog(f"frame {e.frame}: vehicle {e.vehicle} changes {e.trigger}"))
     rec.flush()
     return {"frames": int(t["frame"].nunique()), "overrides": int(over.sum()), "path": str(path)}
+
+
+# ---- highway-env environments under the Guardian ----------------------------------------------------
+class GuardianRecorder:
+    """Rollouts of ``guardian.wrapper.Guardian`` on a highway-env environment, in simulator coordinates.
+
+    * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
+      ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in
+      highway-env's renderer)
+    * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
+      the decoded inputs of the last simulation step)
+    * ``admissible/acceleration/{low,high}`` the composed admissible acceleration at the applied
+      lateral input
+    * ``intention/valid_count`` and ``intention/log`` the lead's valid intentions and their changes;
+      ``guardian/active_set`` (text)
+    * ``events/override`` one entry per overridden step with the reasons; ``events/episode``
+    """
+
+    def __init__(self, path: Path, application_id: str = "guardian-highway-env"):
+        self.rec = rr.RecordingStream(application_id)
+        self.rec.save(str(path))
+        self.path = Path(path)
+        self.step_index = 0
+        self._valid = None
+        self._lanes_logged = False
+
+    def start_episode(self, env, episode: int) -> None:
+        base = env.unwrapped
+        if not self._lanes_logged:
+            strips = []
+            for _from in base.road.network.graph.values():
+                for group in _from.values():
+                    for lane in group:
+                        for side in (-0.5, 0.5):
+                            y = float(lane.start[1]) + side * lane.width
+                            strips.append([[float(lane.start[0]), y], [float(lane.end[0]), y]])
+            self.rec.log("road/lanes", rr.LineStrips2D(strips), static=True)
+            self._lanes_logged = True
+        self._valid = None
+        self.rec.set_time("step", sequence=self.step_index)
+        self.rec.log("events/episode", rr.TextLog(f"episode {episode} starts"))
+
+    def log(self, env, episode: int, t: int, record: dict) -> None:
+        base = env.unwrapped
+        rec = self.rec
+        rec.set_time("step", sequence=self.step_index)
+        ego, lead = base.vehicle, getattr(base, "lead", None)
+
+        def boxes(vs, colour, labels=None):
+            return rr.Boxes2D(centers=[[float(v.position[0]), float(v.position[1])] for v in vs],
+                              half_sizes=[[v.LENGTH / 2, v.WIDTH / 2] for v in vs],
+                              colors=[colour] * len(vs), labels=labels)
+
+        rec.log("road/ego", boxes([ego], (40, 180, 60), ["ego"]))
+        if lead is not None:
+            rec.log("road/lead", boxes([lead], (230, 150, 30), ["lead"]))
+        traffic = [v for v in base.road.vehicles if v is not ego and v is not lead]
+        rec.log("road/traffic", boxes(traffic, (60, 120, 220)))
+        g = record or {}
+        for kind in ("proposed", "applied"):
+            u = g.get(f"{kind}_input") or (g.get(kind) if isinstance(g.get(kind), list) else None)
+            if u:
+                rec.log(f"inputs/{kind}/throttle", rr.Scalars([float(u[0])]))
+                rec.log(f"inputs/{kind}/steering", rr.Scalars([float(u[1])]))
+        band = g.get("admissible_acceleration") or []
+        if band:
+            rec.log("admissible/acceleration/low", rr.Scalars([min(r[0] for r in band)]))
+            rec.log("admissible/acceleration/high", rr.Scalars([max(r[1] for r in band)]))
+        if g:
+            rec.log("guardian/active_set", rr.TextLog(str(g.get("active_set"))))
+            valid = tuple(g.get("valid_intentions", []))
+            if lead is not None:
+                rec.log("intention/valid_count", rr.Scalars([float(len(valid))]))
+                if valid != self._valid:
+                    rec.log("intention/log", rr.TextLog(f"valid intentions: {', '.join(valid) or 'none'}; "
+                                                        f"active set {g.get('active_set')}"))
+                    self._valid = valid
+            if g.get("overridden"):
+                rec.log("events/override", rr.TextLog(
+                    f"episode {episode} step {t} ({g.get('changed')}): {g.get('proposed')} -> {g.get('applied')}; "
+                    + "; ".join(g.get("reasons", [])), level="WARN"))
+        self.step_index += 1
+
+    def close(self) -> None:
+        self.rec.flush()

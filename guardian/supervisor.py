@@ -81,17 +81,29 @@ class IntentionAwareGuardian:
             return self.estimator.valid[0]
         return AGNOSTIC
 
-    def step(self, x, u_driver) -> tuple[np.ndarray, GuardianRecord]:
+    def observe(self, x) -> "LeadView":
+        """Feed the last transition to the estimator and return the active set's ``S(x)`` (Theorem 4).
+
+        Call ``commit(x, applied)`` once the input to apply is known (``step`` does both).
+        """
         x = _finite_vector(x, 4, "state")
-        u = _finite_vector(u_driver, 2, "driver input")
         self.library.models[AGNOSTIC].system.piece_index(x)  # raises before any state changes
         if self._last is not None:
             self.estimator.update(self._last[0], self._last[1], x)
         name = self.active_set
         adm = self.library.admissible(name)
-        query = adm.at(x)
-        inside = self.library.region(name).contains(x)
-        result = adm.override(x, u, self.priority, query=query)
+        return LeadView(x, name, adm, adm.at(x), bool(self.library.region(name).contains(x)))
+
+    def commit(self, x, applied) -> None:
+        self._last = (np.asarray(x, dtype=float), np.asarray(applied, dtype=float))
+        self.t += 1
+
+    def step(self, x, u_driver) -> tuple[np.ndarray, GuardianRecord]:
+        u = _finite_vector(u_driver, 2, "driver input")
+        view = self.observe(x)
+        x = view.x
+        query = view.query
+        result = view.admissible.override(x, u, self.priority, query=query)
         if result.feasible:
             applied, changed, overridden = result.applied, result.changed, result.overridden
         else:
@@ -99,13 +111,27 @@ class IntentionAwareGuardian:
             overridden = not np.array_equal(applied, u)
         record = GuardianRecord(
             t=self.t, state=x.tolist(), proposed=u.tolist(), applied=applied.tolist(),
-            overridden=bool(overridden), changed=changed, active_set=name,
+            overridden=bool(overridden), changed=changed, active_set=view.name,
             valid_intentions=list(self.estimator.valid),
-            identified=self.estimator.valid[0] if len(self.estimator.valid) == 1 else None,
-            in_invariant_set=bool(inside), unsafe=not inside,
+            identified=self.identified,
+            in_invariant_set=view.inside, unsafe=not view.inside,
             admissible=[P.tolist() for P in query.polygons],
             throttle_range=query.ranges(0, u[1]),
             steering_range=query.ranges(1, u[0]))
-        self._last = (x, applied)
-        self.t += 1
+        self.commit(x, applied)
         return applied, record
+
+    @property
+    def identified(self) -> str | None:
+        return self.estimator.valid[0] if len(self.estimator.valid) == 1 else None
+
+
+@dataclass(frozen=True)
+class LeadView:
+    """What the lead part knows at one state: the active set and its ``S(x)``."""
+
+    x: np.ndarray
+    name: str
+    admissible: object      # rcis.admissible.AdmissibleInputs of the active set
+    query: object           # rcis.admissible.AdmissibleQuery: S(x)
+    inside: bool            # x in the active set (Theorem 4 applies)

@@ -176,11 +176,14 @@ class ChoiceVerdict:
 class EgoSupervisor:
     """Self-safe and ρ̂-responsible input sets of the ego for each triggering choice."""
 
-    def __init__(self, params: HighwayParams, invariant, overapprox: str = "ordered"):
+    def __init__(self, params: HighwayParams, invariant, overapprox: str = "ordered", others_invariant=None):
+        """``invariant`` is the ego's RCIS; ``others_invariant`` (default: the same) the other cars',
+        whose parameters also give their acceleration bound ``u_max``."""
         if overapprox not in OVERAPPROXIMATIONS:
             raise ValueError(f"unknown over-approximation {overapprox!r}; choose from {OVERAPPROXIMATIONS}")
         self.params = params
         self.S = invariant
+        self.S_others = invariant if others_invariant is None else others_invariant
         self.overapprox = overapprox
 
     def choices(self, p, v, lane, ego: int = 0, next_lanes=None) -> list[ChoiceVerdict]:
@@ -200,15 +203,27 @@ class EgoSupervisor:
         lengths (default: ``car_length`` for all); ``announced`` maps car index to its trigger for
         the cars before the ego in the order (ordered ρ̂).
         """
+        speeds, reason = self.lane_change_speeds(p, v, lane, ego, trig, announced, lengths)
+        if not speeds:
+            return ChoiceVerdict(trig, [], reason)
+        inputs = [iv for lo, hi in speeds for iv in speeds_to_inputs(self.params.car_following, v[ego], [(lo, hi)])]
+        return ChoiceVerdict(trig, inputs, "" if inputs else "no input of U reaches a responsible speed")
+
+    def lane_change_speeds(self, p, v, lane, ego, trig, announced, lengths=None):
+        """The ego's next speeds that make the lane change ``trig`` ρ̂-responsible, and why none do.
+
+        Speeds rather than inputs, so that an ego whose input maps to its next speed otherwise
+        than (7.3) (drag, noise) converts them exactly. Returns ``(intervals, reason)``.
+        """
         prm, cf = self.params, self.params.car_following
         target = lane[ego] + LANE_SHIFT[trig]
         if not 1 <= target <= prm.n_lanes:
-            return ChoiceVerdict(trig, [], "no such lane")
+            return [], "no such lane"
         dt, n = cf.dt, len(p)
         lengths = [prm.car_length] * n if lengths is None else lengths
         pn = [p[k] + dt * v[k] for k in range(n)]
         trivial = self.overapprox == "trivial"
-        allowed = admissible_inputs(self.S, (v[ego], math.inf, cf.v_max))  # speed limits only
+        allowed = [(0.0, cf.v_max)]
 
         def may_be_in(k, ln):
             """Can car k be on lane ln at t+1 (under ρ̂)?"""
@@ -223,35 +238,35 @@ class EgoSupervisor:
         if not trivial:
             leads = sorted(leads, key=lambda k: pn[k])[:1]
         for k in leads:
-            iv = self.S.input_intervals(v[ego], pn[k] - lengths[k] - pn[ego], float(cf.worst_lead_speed(v[k])))
-            allowed = intersect_intervals(allowed, iv)
+            speeds = self.S.speed_intervals(pn[k] - lengths[k] - pn[ego], float(cf.worst_lead_speed(v[k])))
+            allowed = intersect_intervals(allowed, speeds)
             if not allowed:
-                return ChoiceVerdict(trig, [], f"ego too close to car {k} ahead in lane {target}")
+                return [], f"ego too close to car {k} ahead in lane {target}"
         # 2. cars that can get the ego as leader: in the target lane behind it at t+1.
         followers = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, target)]
         if not trivial:
             followers = sorted(followers, key=lambda k: -pn[k])[:1]
+        So, co = self.S_others, self.S_others.params
         for k in followers:
-            v_fast = min(v[k] + dt * cf.u_max, cf.v_max)
-            speeds = self.S.lead_speed_intervals(v_fast, pn[ego] - lengths[ego] - pn[k])
-            allowed = intersect_intervals(allowed, speeds_to_inputs(cf, v[ego], speeds))
+            v_fast = min(v[k] + dt * co.u_max, co.v_max)
+            allowed = intersect_intervals(allowed, So.lead_speed_intervals(v_fast, pn[ego] - lengths[ego] - pn[k]))
             if not allowed:
-                return ChoiceVerdict(trig, [], f"car {k} behind in lane {target} could not stay safe")
+                return [], f"car {k} behind in lane {target} could not stay safe"
         # 3. cars behind the ego in its lane that lose it as their leader.
         old = lane[ego]
         behind = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, old)]
         if not trivial:
             behind = sorted(behind, key=lambda k: -pn[k])[:1]
         for c in behind:
-            v_fast = min(v[c] + dt * cf.u_max, cf.v_max)
+            v_fast = min(v[c] + dt * co.u_max, co.v_max)
             new_leads = [k for k in range(n) if k not in (ego, c) and pn[k] >= pn[ego] and may_be_in(k, old)]
             if not trivial:
                 new_leads = sorted(new_leads, key=lambda k: pn[k])[:1]
             for k in new_leads:
-                x = (v_fast, pn[k] - lengths[k] - pn[c], float(cf.worst_lead_speed(v[k])))
-                if not self.S.contains(np.array([x]))[0]:
-                    return ChoiceVerdict(trig, [], f"car {c} behind in lane {old} would be exposed to car {k}")
-        return ChoiceVerdict(trig, allowed)
+                x = (v_fast, pn[k] - lengths[k] - pn[c], float(co.worst_lead_speed(v[k])))
+                if not So.contains(np.array([x]))[0]:
+                    return [], f"car {c} behind in lane {old} would be exposed to car {k}"
+        return allowed, ""
 
 
 # ---- the ego's receding-horizon controller (7.7) ---------------------------------------

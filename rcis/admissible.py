@@ -149,6 +149,39 @@ class AdmissibleQuery:
             return False
         return _kernels.first_piece(self.G, self.r, self.starts, u, tol) >= 0
 
+    def restricted(self, boxes) -> "AdmissibleQuery":
+        """``S(x) ∩ ∪_k B_k`` for boxes ``B_k = ((lo_0, hi_0), (lo_1, hi_1))`` of the input plane.
+
+        Each polygon of S(x) is intersected with each box (sides outside ``U`` add no row), so
+        the result is again a union of convex polygons with the same queries.
+        """
+        lo_u, hi_u = self.owner.u_lower, self.owner.u_upper
+        n = len(self.starts) - 1
+        counts = np.diff(self.starts)
+        piece_of_row = np.repeat(np.arange(n), counts)
+        G, r, starts, offset = [], [], [np.zeros(1, dtype=np.int64)], 0
+        for (lo0, hi0), (lo1, hi1) in boxes:
+            rows = [(np.array([1.0, 0.0]), hi0, hi0 < hi_u[0]), (np.array([-1.0, 0.0]), -lo0, lo0 > lo_u[0]),
+                    (np.array([0.0, 1.0]), hi1, hi1 < hi_u[1]), (np.array([0.0, -1.0]), -lo1, lo1 > lo_u[1])]
+            rows = [(a, b) for a, b, binding in rows if binding]
+            k = len(rows)
+            total = len(self.G) + k * n
+            Gb, rb = np.empty((total, 2)), np.empty(total)
+            Gb[np.arange(len(self.G)) + k * piece_of_row] = self.G
+            rb[np.arange(len(self.G)) + k * piece_of_row] = self.r
+            for j, (a, b) in enumerate(rows):
+                at = self.starts[1:] + k * np.arange(n) + j
+                Gb[at] = a
+                rb[at] = b
+            G.append(Gb)
+            r.append(rb)
+            starts.append(offset + self.starts[1:] + k * np.arange(1, n + 1))
+            offset += total
+        if not G:
+            return AdmissibleQuery(self.owner, np.zeros((0, 2)), np.zeros(0), np.zeros(1, dtype=np.int64))
+        return AdmissibleQuery(self.owner, np.ascontiguousarray(np.vstack(G)), np.concatenate(r),
+                               np.concatenate(starts).astype(np.int64))
+
     def ranges(self, axis: int, value: float) -> list[tuple[float, float]]:
         """Admissible ranges of input ``axis`` with the other fixed to ``value`` (Fig. 6.5)."""
         iv = _kernels.line_intervals(self.G, self.r, self.starts, axis, float(value),

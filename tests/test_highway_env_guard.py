@@ -1,16 +1,19 @@
-"""The ITHA guardian on highway-env: refuses irresponsible lane changes, bounds acceleration, reports in info."""
+"""The guardian on highway-v0 (traffic part alone): refuses irresponsible lane changes, bounds
+acceleration, reports in info — for meta and continuous agents."""
 import gymnasium as gym
 import highway_env  # noqa: F401
 import numpy as np
 import pytest
 
-from envs.highway_guard import HighwayGuardianWrapper, collision_fault, highway_rollouts
+from envs.highway_overtake import ConfigError
+from guardian.rollout import highway_rollouts
+from guardian.wrapper import Guardian
 
 SMALL = {"vehicles_count": 20, "duration": 12}
 
 
-def _env():
-    return HighwayGuardianWrapper(gym.make("highway-v0", config=SMALL))
+def _env(action="DiscreteMetaAction"):
+    return Guardian(gym.make("highway-v0", config={**SMALL, "action": {"type": action}}))
 
 
 def test_info_reports_what_the_guardian_did():
@@ -18,45 +21,87 @@ def test_info_reports_what_the_guardian_did():
     env.reset(seed=3)
     _, _, _, _, info = env.step(env.unwrapped.action_type.actions_indexes["LANE_LEFT"])
     g = info["guardian"]
-    for key in ("proposed", "applied", "refused", "reason", "clipped_steps", "sim_steps", "overridden"):
+    for key in ("proposed", "applied", "overridden", "changed", "reasons", "refused_lane_change", "active_set",
+                "valid_intentions", "sim_steps", "clipped_steps", "conflict_steps", "failsafe_steps",
+                "model_violations", "admissible_acceleration"):
         assert key in g
     assert g["sim_steps"] == env.unwrapped.config["simulation_frequency"]
-    assert g["refused"] == (g["applied"] != g["proposed"])
-    if g["refused"]:
-        assert g["reason"]
+    assert g["active_set"] == "itha" and g["valid_intentions"] == []
+    assert g["refused_lane_change"] == (g["applied"] != g["proposed"])
+    if g["refused_lane_change"]:
+        assert g["reasons"]
     env.close()
 
 
-def test_applied_acceleration_stays_in_the_input_bounds():
-    env = _env()
+@pytest.mark.parametrize("action", ["DiscreteMetaAction", "ContinuousAction"])
+def test_applied_inputs_stay_in_the_input_bounds(action):
+    env = _env(action)
     env.reset(seed=1)
     rng = np.random.default_rng(0)
+    steer_max = np.pi / 4 if action == "ContinuousAction" else np.pi / 3
     for _ in range(10):
-        _, _, term, trunc, info = env.step(int(rng.integers(5)))
-        a = env.unwrapped.vehicle.action["acceleration"]
-        assert -6.0 - 1e-9 <= a <= 6.0 + 1e-9
+        a = int(rng.integers(5)) if action == "DiscreteMetaAction" else rng.uniform(-1, 1, 2)
+        _, _, term, trunc, info = env.step(a)
+        applied = env.unwrapped.vehicle.action
+        assert -6.0 - 1e-9 <= applied["acceleration"] <= 6.0 + 1e-9
+        assert abs(applied["steering"]) <= steer_max + 1e-9
         if term or trunc:
             break
     env.close()
 
 
-def test_guardian_prevents_at_fault_collisions_of_a_reckless_agent():
-    guarded = highway_rollouts("highway-v0", "reckless", 4, seed=10, env_config=SMALL)
-    assert guarded["ego_at_fault_collisions"] == 0
+@pytest.mark.parametrize("action", ["meta", "continuous"])
+def test_guardian_prevents_at_fault_collisions_of_a_reckless_agent(action):
+    guarded = highway_rollouts("highway-v0", "reckless", 3, seed=10, action=action, env_config=SMALL)
+    assert guarded["ego_at_fault_collisions"] == 0 and guarded["collisions"] == 0
     assert guarded["override_steps"] > 0 and guarded["distance_mean"] > 100
+    assert guarded["model_violation_steps"] == 0
 
 
 def test_the_same_agent_crashes_without_the_guardian():
-    free = highway_rollouts("highway-v0", "reckless", 4, seed=10, guardian=False, env_config=SMALL)
+    free = highway_rollouts("highway-v0", "reckless", 4, seed=10, action="meta", guardian=False, env_config=SMALL)
     assert free["collisions"] > 0 and free["override_steps"] == 0
 
 
-def test_wrapper_needs_meta_actions():
-    env = gym.make("highway-v0", config={"action": {"type": "ContinuousAction"}})
-    with pytest.raises(ValueError, match="DiscreteMetaAction"):
-        HighwayGuardianWrapper(env)
+def test_continuous_steering_into_an_occupied_lane_is_refused():
+    """A continuous agent steering hard left with a car alongside in the left lane: the body stays out."""
+    env = _env("ContinuousAction")
+    env.reset(seed=0)
+    base = env.unwrapped
+    ego = base.vehicle
+    lane = ego.lane_index[2]
+    if lane == 0:  # need a lane on the left
+        pytest.skip("ego starts in the leftmost lane for this seed")
+    other = next(v for v in base.road.vehicles if v is not ego)
+    other.position = np.array([ego.position[0] + 1.0, (lane - 1) * 4.0])
+    other.speed = ego.speed
+    other.lane_index = other.target_lane_index = ("0", "1", lane - 1)
+    _, _, _, _, info = env.step(np.array([0.0, -1.0]))
+    g = info["guardian"]
+    assert g["refused_lane_change"] and any("refused" in r for r in g["reasons"])
+    half = env.ego_kin.half_extent(float(ego.heading))
+    assert ego.position[1] - half >= (lane - 0.5) * 4.0 - 1e-9  # never crossed into the left lane
+    env.close()
 
 
 def test_unknown_agent_is_refused():
     with pytest.raises(ValueError, match="unknown agent"):
         highway_rollouts("highway-v0", "nobody", 1, 0)
+
+
+@pytest.mark.parametrize("env_id,config,match", [
+    ("highway-v0", {"action": {"type": "DiscreteAction"}}, "action.type"),
+    ("highway-v0", {"action": {"type": "ContinuousAction", "lateral": False}}, "both axes"),
+    ("highway-v0", {"action": {"type": "DiscreteMetaAction", "lateral": False}}, "five meta actions"),
+    ("merge-v0", {}, "straight multi-lane road"),
+])
+def test_configs_it_cannot_supervise_are_refused(env_id, config, match):
+    with pytest.raises(ConfigError, match=match):
+        Guardian(gym.make(env_id, config=config))
+
+
+def test_a_non_highway_env_is_refused():
+    import envs  # noqa: F401
+
+    with pytest.raises(ConfigError, match="not a highway-env environment"):
+        Guardian(gym.make("guardian/Overtake-v0"))

@@ -169,3 +169,18 @@ def _poly_contains(P, u):
 def _near_edge(polys, u, tol=1e-9):
     from rcis.admissible import _dist_to_segment
     return any(_dist_to_segment(P[i], P[(i + 1) % len(P)], u) < tol for P in polys for i in range(len(P)))
+
+
+def test_restricting_S_to_boxes_is_the_intersection(library):
+    """``AdmissibleQuery.restricted`` = membership in S(x) and in one of the boxes, on a grid."""
+    adm = library.admissible("cautious")
+    x = np.array([25.0, -0.297, 16.52, 20.0])
+    q = adm.at(x)
+    boxes = [((-2.0, 1.0), (-1.8, 0.4)), ((2.5, 3.0), (1.0, 1.8))]
+    r = q.restricted(boxes)
+    grid = np.stack(np.meshgrid(np.linspace(-2.97, 2.97, 61), np.linspace(-1.77, 1.77, 37)), -1).reshape(-1, 2)
+    for u in grid:
+        in_box = any(a0 <= u[0] <= a1 and b0 <= u[1] <= b1 for (a0, a1), (b0, b1) in boxes)
+        assert r.contains(u) == (q.contains(u) and in_box)
+    assert q.restricted([((-3.0, 3.0), (-1.8, 1.8))]).contains(grid[0]) == q.contains(grid[0])
+    assert not q.restricted([]).polygons

@@ -1,0 +1,97 @@
+"""Does each observed transition fit the model the sets assume? (counted, never assumed)
+
+``ModelMonitor.observe(base_env, applied)`` is called once per simulation step,
+before the step; it compares the previous snapshot with the present one and
+counts, for the ego, the lead (overtake scenario) and the traffic, the
+transitions the model does not cover:
+
+* overtake ego (6.3)-(6.4): the implied ``w_ex``, ``w_ey`` inside their box and
+  ``h+ = h + dt (v_L - v_ex)``;
+* lead: the next speed explained by at least one intention model (6.5)/(6.7) with
+  ``w_Delta``, ``w_Lx`` inside their box;
+* highway-env ego (bicycle): ``speed+ = speed + dt a`` and a progress along the
+  road in ``[BicycleEgo.min_progress, dt speed]`` (what the guardian covers);
+* traffic (7.3): progress ``dt v``, acceleration in ``[d_min, d_max]``, speed in
+  ``[0, v_max]``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+TOL = 1e-6
+
+
+class ModelMonitor:
+    def __init__(self, dt: float, d_bounds: tuple, v_max: float, overtake_params=None, intention_models=None,
+                 ego_kinematics=None):
+        self.dt, self.d_bounds, self.v_max = dt, d_bounds, v_max
+        self.p = overtake_params
+        self.models = intention_models or {}
+        self.ego_kin = ego_kinematics
+        self.reset()
+
+    def reset(self) -> None:
+        self._prev = None
+        self.totals = {"ego": 0, "lead": 0, "traffic": 0}
+
+    def _snapshot(self, base, applied):
+        ego = base.vehicle
+        lead = getattr(base, "lead", None)
+        traffic = {id(v): (float(v.position[0]), float(v.speed)) for v in base.road.vehicles
+                   if v is not ego and v is not lead}
+        snap = {"traffic": traffic, "applied": np.asarray(applied, float),
+                "ego": (float(ego.position[0]), float(ego.speed), float(ego.heading))}
+        if lead is not None:
+            snap["x"] = base.overtake_state()
+        return snap
+
+    def observe(self, base, applied) -> dict:
+        """Counts for the transition that ended now; then remember the present with ``applied``."""
+        now = self._snapshot(base, applied)
+        counts = {"ego": 0, "lead": 0, "traffic": 0}
+        if self._prev is not None:
+            counts = self._compare(self._prev, now)
+            for k, n in counts.items():
+                self.totals[k] += n
+        self._prev = now
+        return counts
+
+    def _compare(self, prev, now) -> dict:
+        counts = {"ego": 0, "lead": 0, "traffic": 0}
+        dt = self.dt
+        lo, hi = self.d_bounds
+        for key, (x0, v0) in prev["traffic"].items():
+            if key not in now["traffic"]:
+                continue
+            x1, v1 = now["traffic"][key]
+            a = (v1 - v0) / dt
+            if abs(x1 - x0 - dt * v0) > TOL or not (lo - TOL <= a <= hi + TOL) or not (-TOL <= v1 <= self.v_max + TOL):
+                counts["traffic"] += 1
+        if "x" in prev:
+            counts["ego"], counts["lead"] = self._overtake(prev["x"], prev["applied"], now["x"])
+        else:
+            counts["ego"] = int(not self._bicycle_fits(prev, now))
+        return counts
+
+    def _overtake(self, x, u, x1) -> tuple[int, int]:
+        p, dt = self.p, self.dt
+        w_ex = (x1[0] - (1 - p.b_e * dt) * x[0]) / dt - u[0]
+        w_ey = (x1[1] - x[1]) / dt - u[1]
+        ego_ok = (p.w_ex_bounds[0] - TOL <= w_ex <= p.w_ex_bounds[1] + TOL
+                  and p.w_ey_bounds[0] - TOL <= w_ey <= p.w_ey_bounds[1] + TOL
+                  and abs(x1[2] - x[2] - dt * (x[3] - x[0])) <= TOL)
+        w_lo = p.w_delta_bounds[0] + p.w_Lx_bounds[0]
+        w_hi = p.w_delta_bounds[1] + p.w_Lx_bounds[1]
+        residual = (x1[3] - (1 - p.b_L * dt) * x[3]) / dt
+        lead_ok = any(w_lo - TOL <= residual - m.nominal_lead_acceleration(x) <= w_hi + TOL
+                      for m in self.models.values())
+        return int(not ego_ok), int(not lead_ok)
+
+    def _bicycle_fits(self, prev, now) -> bool:
+        x0, v0, heading = prev["ego"]
+        x1, v1, _ = now["ego"]
+        a = float(prev["applied"][0])
+        progress = x1 - x0
+        speed_ok = abs(v1 - v0 - self.dt * a) <= TOL
+        progress_ok = self.ego_kin.min_progress(v0, heading) - TOL <= progress <= self.dt * v0 + TOL
+        return speed_ok and progress_ok

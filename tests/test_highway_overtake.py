@@ -1,0 +1,94 @@
+"""guardian/HighwayOvertake-v0: highway-env's parts, the intention model driving, strict config."""
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import envs  # noqa: F401
+from envs.highway_overtake import ConfigError, HighwayOvertakeEnv
+from intention.models import intention_models
+
+
+def test_check_env_passes():
+    check_env(gym.make("guardian/HighwayOvertake-v0").unwrapped, skip_render_check=True)
+
+
+@pytest.mark.parametrize("intention", ["aggressive", "cautious"])
+@pytest.mark.parametrize("disturbance", ["random", "adversarial"])
+def test_every_step_is_the_intention_models_pwa_step(intention, disturbance):
+    """The env moves the ego and the lead exactly as ``PWASystem.step`` (6.3)-(6.7) says."""
+    env = gym.make("guardian/HighwayOvertake-v0", config={"intention": intention, "disturbance": disturbance})
+    base = env.unwrapped
+    model = intention_models()[intention]
+    env.reset(seed=4)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        _, _, term, trunc, info = env.step(rng.uniform(-1, 1, 2))
+        tr = base.last_transition
+        expected = model.system.step(tr["state"], tr["input"], tr["disturbance"])
+        assert np.allclose(base.overtake_state(), expected, atol=1e-9)
+        assert np.allclose(info["overtake_state"], expected, atol=1e-9)
+        if term or trunc:
+            break
+
+
+def test_continuous_actions_map_onto_U_e():
+    env = gym.make("guardian/HighwayOvertake-v0")
+    env.reset(seed=0)
+    env.step(np.array([1.0, -1.0], dtype=np.float32))
+    assert np.allclose(env.unwrapped.last_transition["input"], [3.0, -1.8], atol=1e-6)
+
+
+def test_adversarial_disturbance_is_the_vertex_against_the_ego():
+    env = gym.make("guardian/HighwayOvertake-v0", config={"disturbance": "adversarial"})
+    env.reset(seed=0)
+    env.step(np.zeros(2))
+    w = env.unwrapped.last_transition["disturbance"]
+    assert w.tolist() == [0.15, -0.09, -0.05, -0.1]  # ego behind: pushed on, lead brakes
+
+
+def test_meta_lane_left_moves_the_ego_to_the_left_lane():
+    env = gym.make("guardian/HighwayOvertake-v0", config={"action": {"type": "DiscreteMetaAction"},
+                                                          "traffic_count": 0, "traffic_from_behind": 0})
+    env.reset(seed=2)
+    for _ in range(30):
+        env.step(0)  # LANE_LEFT
+    assert env.unwrapped.overtake_state()[1] > 1.5
+
+
+def test_traffic_never_enters_the_scenarios_right_lane():
+    env = gym.make("guardian/HighwayOvertake-v0", config={"lanes_count": 3, "traffic_count": 8,
+                                                          "traffic_from_behind": 2, "duration": 20})
+    base = env.unwrapped
+    env.reset(seed=1)
+    for _ in range(150):
+        _, _, term, trunc, _ = env.step(np.zeros(2))
+        for v in base.road.vehicles[2:]:
+            assert v.lane_index[2] != base.right_lane and v.target_lane_index[2] != base.right_lane
+        if term or trunc:
+            break
+
+
+@pytest.mark.parametrize("config,match", [
+    ({"simulation_frequency": 15}, "simulation_frequency"),
+    ({"policy_frequency": 1}, "policy_frequency"),
+    ({"action": {"type": "DiscreteAction"}}, "action.type"),
+    ({"action": {"type": "ContinuousAction", "acceleration_range": [-5, 5], "steering_range": [-1.8, 1.8]}},
+     "acceleration_range"),
+    ({"lanes_count": 1}, "lanes_count"),
+    ({"intention": "sleepy"}, "intention"),
+    ({"disturbance": "gusty"}, "disturbance"),
+    ({"traffic_from_behind": 9, "traffic_count": 2}, "traffic_from_behind"),
+    ({"no_such_key": 1}, "unknown config keys"),
+])
+def test_configs_it_cannot_simulate_are_refused(config, match):
+    with pytest.raises(ConfigError, match=match):
+        HighwayOvertakeEnv(config)
+
+
+def test_render_shows_the_scene():
+    env = gym.make("guardian/HighwayOvertake-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.ndim == 3 and frame.shape[2] == 3 and frame.std() > 0
+    env.close()
