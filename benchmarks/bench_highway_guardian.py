@@ -4,8 +4,9 @@ Run: python benchmarks/bench_highway_guardian.py [--json] [--episodes N]
 
 For each environment and action type, seeded episodes of a random agent run twice: without the
 guardian (the simulator's own step, timed per simulation step) and with it (the guardian's
-supervision, timed inside its per-simulation-step hook). Figures: median and p99 in ms, and the
-guardian's median as a share of the simulator's median step.
+supervision, timed inside its per-simulation-step hook). Figures: median and p99 in ms, the
+guardian's median as a share of the simulator's median simulation step, and a whole ``env.step``
+(simulation, observation, reward) with and without the guardian.
 """
 from __future__ import annotations
 
@@ -46,15 +47,19 @@ def _timed_sim(env, episodes: int, guarded: bool):
                 _f(*a)
                 hook_times.append(time.perf_counter() - t)
             setattr(env, name, timed)
+    step_times = []
     for ep in range(episodes):
         obs, _ = env.reset(seed=ep)
         agent = make_agent("random", env, np.random.default_rng(ep))
         done = False
         while not done:
-            obs, _, term, trunc, _ = env.step(agent(obs))
+            action = agent(obs)
+            t = time.perf_counter()
+            obs, _, term, trunc, _ = env.step(action)
+            step_times.append(time.perf_counter() - t)
             done = term or trunc
     env.close()
-    return np.array(base_times), np.array(hook_times)
+    return np.array(base_times), np.array(hook_times), np.array(step_times)
 
 
 def bench(episodes: int) -> dict:
@@ -62,12 +67,14 @@ def bench(episodes: int) -> dict:
     out = {}
     for env_id, action in CASES:
         cfg = highway_env_config(env_id, action, "cautious", "random", None, library)
-        free, _ = _timed_sim(gym.make(env_id, config=cfg), episodes, False)
-        guarded_sim, hook = _timed_sim(Guardian(gym.make(env_id, config=cfg), library), episodes, True)
+        free, _, free_steps = _timed_sim(gym.make(env_id, config=cfg), episodes, False)
+        _, hook, guarded_steps = _timed_sim(Guardian(gym.make(env_id, config=cfg), library), episodes, True)
         sim_ms = 1e3 * np.median(free)
         out[f"{env_id} {action}"] = {
             "sim_steps": int(len(hook)),
             "simulator_step_ms_median": round(sim_ms, 3),
+            "env_step_ms_median": round(1e3 * np.median(free_steps), 3),
+            "guarded_env_step_ms_median": round(1e3 * np.median(guarded_steps), 3),
             "guardian_ms_median": round(1e3 * np.median(hook), 3),
             "guardian_ms_p99": round(1e3 * np.percentile(hook, 99), 3),
             "guardian_share_of_sim_step": round(float(np.median(hook)) / float(np.median(free)), 3),
@@ -85,8 +92,10 @@ def main() -> None:
         print(json.dumps(res, indent=2))
         return
     for k, v in res.items():
-        print(f"{k:40s} sim {v['simulator_step_ms_median']:.2f} ms | guardian median {v['guardian_ms_median']:.3f} ms "
-              f"p99 {v['guardian_ms_p99']:.3f} ms | share {100 * v['guardian_share_of_sim_step']:.1f} %")
+        print(f"{k:40s} sim step {v['simulator_step_ms_median']:.2f} ms | guardian median "
+              f"{v['guardian_ms_median']:.3f} ms p99 {v['guardian_ms_p99']:.3f} ms | share "
+              f"{100 * v['guardian_share_of_sim_step']:.1f} % | env.step {v['env_step_ms_median']:.2f} ms "
+              f"-> {v['guarded_env_step_ms_median']:.2f} ms guarded")
 
 
 if __name__ == "__main__":

@@ -315,7 +315,10 @@ def cmd_serve(args) -> int:
 def _combine(runs: list) -> dict:
     """One record for several runs: counts summed, means weighted by episodes, the runs kept under "runs"."""
     out = {k: sum(r[k] for r in runs) for k, v in runs[0].items()
-           if isinstance(v, int) and not isinstance(v, bool) and all(k in r for r in runs)}
+           if isinstance(v, int) and not isinstance(v, bool) and all(isinstance(r.get(k), int) for r in runs)}
+    if all(isinstance(r.get("traffic_model_worst"), dict) for r in runs):
+        out["traffic_model_worst"] = {k: max(r["traffic_model_worst"].get(k, 0.0) for r in runs)
+                                      for k in runs[0]["traffic_model_worst"]}
     if all("distance_mean" in r for r in runs):
         out["distance_mean"] = sum(r["distance_mean"] * r["episodes"] for r in runs) / out["episodes"]
     if all("identified_fraction" in r for r in runs):

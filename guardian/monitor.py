@@ -33,6 +33,7 @@ class ModelMonitor:
     def reset(self) -> None:
         self._prev = None
         self.totals = {"ego": 0, "lead": 0, "traffic": 0}
+        self.worst = {"traffic_progress_shortfall_m": 0.0, "traffic_braking_excess": 0.0}
 
     def _snapshot(self, base, applied):
         ego = base.vehicle
@@ -65,6 +66,9 @@ class ModelMonitor:
                 continue
             x1, v1 = now["traffic"][key]
             a = (v1 - v0) / dt
+            w = self.worst
+            w["traffic_progress_shortfall_m"] = max(w["traffic_progress_shortfall_m"], dt * v0 - (x1 - x0))
+            w["traffic_braking_excess"] = max(w["traffic_braking_excess"], lo - a)
             if abs(x1 - x0 - dt * v0) > TOL or not (lo - TOL <= a <= hi + TOL) or not (-TOL <= v1 <= self.v_max + TOL):
                 counts["traffic"] += 1
         if "x" in prev:
@@ -72,6 +76,10 @@ class ModelMonitor:
         else:
             counts["ego"] = int(not self._bicycle_fits(prev, now))
         return counts
+
+    def overtake_transition(self, x, u, x1) -> tuple[int, int]:
+        """``(ego, lead)`` violations of one overtake transition ``x -> x1`` under input ``u`` (0 or 1 each)."""
+        return self._overtake(np.asarray(x, float), np.asarray(u, float), np.asarray(x1, float))
 
     def _overtake(self, x, u, x1) -> tuple[int, int]:
         p, dt = self.p, self.dt

@@ -143,13 +143,17 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     if video_dir:
         env = gym.wrappers.RecordVideo(env, str(video_dir), episode_trigger=lambda e: True,
                                        name_prefix=env_id.replace("/", "-"), disable_logger=True)
-    estimator = None
+    estimator = monitor = None
     if overtake:
+        from guardian.monitor import ModelMonitor
         from intention.estimator import IntentionEstimator
         from intention.models import intention_models
 
         models = intention_models(env.unwrapped.params)
-        estimator = IntentionEstimator({n: models[n] for n in ("aggressive", "cautious")}, horizon=10)
+        candidates = {n: models[n] for n in ("aggressive", "cautious")}
+        estimator = IntentionEstimator(candidates, horizon=10)
+        if not guardian:  # the guardian's own monitor counts when it is there
+            monitor = ModelMonitor(env.unwrapped.params.dt, (-6.0, 6.0), 40.0, env.unwrapped.params, candidates)
     totals = {"episodes": episodes, "steps": 0, "collisions": 0, "ego_at_fault_collisions": 0, "override_steps": 0,
               "refused_lane_changes": 0, "clipped_sim_steps": 0, "lane_changes": 0, "distance_mean": 0.0,
               "model_violation_steps": 0, "traffic_model_violation_steps": 0, "conflict_steps": 0,
@@ -158,6 +162,7 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         totals.update({"safety_violations": 0, "wrong_identifications": 0})
     identify = []
     distance = 0.0
+    monitor_worst = {}
     try:
         for ep in range(episodes):
             obs, info = env.reset(seed=seed + ep)
@@ -183,6 +188,9 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
                 if estimator is not None:
                     tr = base.last_transition
                     estimator.update(tr["state"], tr["input"], tr["next_state"])
+                if monitor is not None:
+                    totals["model_violation_steps"] += int(sum(monitor.overtake_transition(
+                        tr["state"], tr["input"], tr["next_state"])) > 0)
                     totals["safety_violations"] += int(info["unsafe"])
                 if recorder is not None:
                     recorder.log(env, ep, t, info.get("guardian"))
@@ -200,11 +208,20 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
                 identify.append(estimator.identified_at)
                 totals["wrong_identifications"] += int(estimator.valid != [base.model.name])
             distance += float(base.vehicle.position[0]) - x0
+            if guardian:
+                for k, v in _guardian_of(env).monitor.worst.items():
+                    monitor_worst[k] = max(monitor_worst.get(k, 0.0), v)
             if progress:
                 progress(ep + 1, episodes)
     finally:
         env.close()
     totals["distance_mean"] = distance / episodes
+    if not guardian:  # measured only by the guardian's monitor (and, on HighwayOvertake, from the env's transitions)
+        totals["traffic_model_violation_steps"] = None
+        if not overtake:
+            totals["model_violation_steps"] = None
+    if guardian:
+        totals["traffic_model_worst"] = {k: round(v, 6) for k, v in monitor_worst.items()}
     if overtake:
         totals["mean_steps_to_identify_intention"] = float(np.mean(identify)) if identify else None
         totals["identified_fraction"] = len(identify) / episodes
@@ -224,3 +241,12 @@ def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:
     totals["traffic_model_violation_steps"] += int(mv["traffic"] > 0)
     totals["conflict_steps"] += g["conflict_steps"]
     totals["failsafe_steps"] += g["failsafe_steps"]
+
+
+def _guardian_of(env):
+    """The ``Guardian`` inside a stack of wrappers."""
+    from guardian.wrapper import Guardian
+
+    while not isinstance(env, Guardian):
+        env = env.env
+    return env

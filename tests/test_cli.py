@@ -123,3 +123,37 @@ def test_replay_refuses_malformed_data_with_exit_2(tmp_path, capsys):
     assert "01_tracks.csv" in err and "line" in err
     assert main(["replay", str(tmp_path / "nowhere")]) == 2
     assert "no such file or folder" in capsys.readouterr().err
+
+
+def test_rollout_highway_overtake_json_rerun_and_video(library, cache_dir, tmp_path, capsys):
+    from guardian.rerun_log import read_entities, read_texts
+
+    rrd, video = tmp_path / "run.rrd", tmp_path / "video"
+    code, data = run_json(capsys, ["rollout", "--env", "guardian/HighwayOvertake-v0", "--intention", "aggressive",
+                                   "--agent", "random", "--episodes", "1", "--seed", "2", "--traffic", "3",
+                                   "--rerun", str(rrd), "--video", str(video), "--json",
+                                   "--cache-dir", str(cache_dir)])
+    assert code == 0
+    for key in ("episodes", "steps", "collisions", "ego_at_fault_collisions", "override_steps", "safety_violations",
+                "model_violation_steps", "conflict_steps", "wrong_identifications",
+                "mean_steps_to_identify_intention", "traffic_model_worst"):
+        assert key in data
+    assert data["intention"] == "aggressive" and data["model_violation_steps"] == 0
+    entities = read_entities(rrd)
+    for e in ("/road/ego", "/road/lead", "/road/traffic", "/intention/valid_count", "/road/lanes"):
+        assert entities.get(e, 0) > 0, e
+    assert any("valid intentions" in t for t in read_texts(rrd, "/intention/log"))
+    if data["override_steps"]:
+        assert read_texts(rrd, "/events/override")
+    assert list(video.rglob("*.mp4"))
+
+
+def test_rollout_env_refuses_what_it_cannot_run(library, cache_dir, capsys):
+    base = ["rollout", "--episodes", "1", "--cache-dir", str(cache_dir)]
+    assert main(base + ["--env", "nowhere-v0"]) == 2
+    assert main(base + ["--env", "highway-v0", "--agent", "nobody"]) == 2
+    assert main(base + ["--env", "highway-v0", "--agent", "mpc"]) == 2
+    assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--agent", "mpc", "--action", "meta"]) == 2
+    assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--traffic", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "nowhere-v0" in err and "nobody" in err and "--action continuous" in err and "--traffic" in err

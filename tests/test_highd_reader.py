@@ -85,6 +85,11 @@ CASES = {
     "bad direction": ("tracksMeta", lambda df: df.assign(drivingDirection=df["drivingDirection"].mask(df.index == 1, "3")),
                       r"line 3, column 'drivingDirection': 3 is not 1 or 2"),
     "recording id mismatch": ("recordingMeta", lambda df: df.assign(id="2"), r"does not match the file name"),
+    "month as a number": ("recordingMeta", lambda df: df.assign(month="4.2005"),
+                          r"line 2, column 'month': '4\.2005' is not MM\.YYYY"),
+    "month 13": ("recordingMeta", lambda df: df.assign(month="13.2017"), r"column 'month': '13\.2017'"),
+    "week day": ("recordingMeta", lambda df: df.assign(weekDay="Tuesday"), r"column 'weekDay': 'Tuesday' is not Mon"),
+    "start time": ("recordingMeta", lambda df: df.assign(startTime="8h38"), r"column 'startTime': '8h38' is not HH:MM"),
 }
 
 
@@ -106,3 +111,32 @@ def test_missing_file_and_empty_folder(generated, tmp_path):
     empty.mkdir()
     with pytest.raises(HighDFormatError, match="no NN_recordingMeta.csv"):
         recording_ids(empty)
+
+
+def test_published_recording_meta_formats_load(generated, tmp_path):
+    """month ``MM.YYYY``, weekDay ``Tue``, startTime ``08:38``, speedLimit -1: as HighD publishes them."""
+    folder = _copy(generated, tmp_path)
+    _edit(folder, "recordingMeta", lambda df: df.assign(month="09.2017", weekDay="Tue", startTime="08:38",
+                                                        speedLimit="-1.00"))
+    rec = read_recording(folder, 1)
+    assert rec.meta["month"] == "09.2017" and rec.meta["startTime"] == "08:38"
+
+
+def test_the_generator_writes_the_published_month_format(generated):
+    assert read_recording(generated, 1).meta["month"] == "04.2026"
+
+
+def test_the_real_i80_sample_replays():
+    """Real traffic (NGSIM I-80 in HighD format, ../shared/data): 10 Hz, one carriageway, published meta."""
+    from pathlib import Path
+
+    from guardian.highd.replay import ReplayConfig, replay
+
+    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "i80_sample"
+    if not folder.is_dir():
+        pytest.fail(f"the real sample is missing: {folder}")
+    rec = read_recording(folder, 1)
+    assert rec.frame_rate == 10 and rec.meta["month"] == "04.2005" and rec.meta["weekDay"] == "Wed"
+    result = replay(folder, ReplayConfig(seed=0))
+    assert result["data_points"] > 50_000 and result["trajectories"] == 700
+    assert set(result["override_rates"]) >= {"self_safety", "responsibility_trivial", "responsibility_ordered"}

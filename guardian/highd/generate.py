@@ -336,7 +336,7 @@ def _recording_meta(rid, prm, tracks, meta, minutes, upper_m, lower_m, seed):
     n_trucks = int((meta["class"] == "Truck").sum())
     return pd.DataFrame([{
         "id": rid, "frameRate": prm.frame_rate, "locationId": prm.location_id, "speedLimit": prm.speed_limit,
-        "month": 1 + seed % 12, "weekDay": "Tue", "startTime": "08:00", "duration": round(minutes * 60, 2),
+        "month": f"{1 + seed % 12:02d}.2026", "weekDay": "Tue", "startTime": "08:00", "duration": round(minutes * 60, 2),
         "totalDrivenDistance": round(float(meta["traveledDistance"].sum()), 2),
         "totalDrivenTime": round(len(tracks) / prm.frame_rate, 2), "numVehicles": len(meta),
         "numCars": len(meta) - n_trucks, "numTrucks": n_trucks,

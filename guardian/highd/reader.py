@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from guardian.highd.schema import FILES, FLOAT, INT, STR, file_name
+from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, STR, file_name
 
 FILE_PATTERN = re.compile(r"^(\d+)_recordingMeta\.csv$")
 
@@ -147,6 +147,10 @@ def read_recording(folder: Path, recording_id: int) -> Recording:
     if int(meta["id"]) != recording_id:
         raise HighDFormatError(f"{paths['recordingMeta']}: line 2, column 'id': {meta['id']} does not match "
                                f"the file name's recording {recording_id}")
+    for column, (pattern, form) in META_FORMATS.items():
+        if not pattern.match(str(meta[column]).strip()):
+            raise HighDFormatError(f"{paths['recordingMeta']}: line 2, column {column!r}: {meta[column]!r} is not "
+                                   f"{form}")
     if int(meta["frameRate"]) <= 0:
         raise HighDFormatError(f"{paths['recordingMeta']}: line 2, column 'frameRate': must be positive")
     upper = _markings(paths["recordingMeta"], meta["upperLaneMarkings"], "upperLaneMarkings")

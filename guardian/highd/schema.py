@@ -6,13 +6,18 @@ the bounding box in image coordinates (y points down); ``width`` is the box's ex
 vehicle's length), ``height`` along y (its width). Direction 1 moves left (upper lanes, negative x
 velocities), direction 2 moves right (lower lanes). Neighbour ids and dhw/thw/ttc are 0 when there
 is none; the min* columns of tracksMeta are -1 when undefined.
+
+recordingMeta as published: ``month`` is ``MM.YYYY`` (``09.2017``), ``weekDay`` an English
+three-letter day (``Tue``), ``startTime`` ``HH:MM``; ``speedLimit`` is -1 when there is none.
 """
 from __future__ import annotations
+
+import re
 
 INT, FLOAT, STR = "int64", "float64", "string"
 
 RECORDING_META = {
-    "id": INT, "frameRate": INT, "locationId": INT, "speedLimit": FLOAT, "month": INT, "weekDay": STR,
+    "id": INT, "frameRate": INT, "locationId": INT, "speedLimit": FLOAT, "month": STR, "weekDay": STR,
     "startTime": STR, "duration": FLOAT, "totalDrivenDistance": FLOAT, "totalDrivenTime": FLOAT,
     "numVehicles": INT, "numCars": INT, "numTrucks": INT, "upperLaneMarkings": STR, "lowerLaneMarkings": STR,
 }
@@ -35,6 +40,12 @@ TRACKS = {
 
 NEIGHBOUR_COLUMNS = ("precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
                      "rightPrecedingId", "rightAlongsideId", "rightFollowingId")
+
+META_FORMATS = {  # published formats of recordingMeta's text columns: (pattern, what it must look like)
+    "month": (re.compile(r"^(0[1-9]|1[0-2])\.\d{4}$"), "MM.YYYY, e.g. 09.2017"),
+    "weekDay": (re.compile(r"^(Mon|Tue|Wed|Thu|Fri|Sat|Sun)$"), "Mon, Tue, Wed, Thu, Fri, Sat or Sun"),
+    "startTime": (re.compile(r"^([01]\d|2[0-3]):[0-5]\d$"), "HH:MM, e.g. 08:38"),
+}
 
 FILES = {"recordingMeta": RECORDING_META, "tracksMeta": TRACKS_META, "tracks": TRACKS}
 
