@@ -380,8 +380,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --env: the agent's action type (default: the env's own)")
     p.add_argument("--traffic", type=int, default=None, help="with --env: number of other cars")
     p.add_argument("--video", type=Path, default=None, help="with --env: write each episode as MP4 into this folder")
-    p.add_argument("--conflict", choices=["lead", "traffic"], default="lead",
-                   help="with --env: which part wins when the lead's and the traffic's sets do not intersect")
+    p.add_argument("--conflict", choices=["lead", "traffic"], default="traffic",
+                   help="with --env: who wins when self-safety against the car ahead and the lead's set do not intersect")
     p.add_argument("--intention", choices=["aggressive", "cautious", "all"], default="cautious")
     p.add_argument("--driver", choices=["mpc", "bad", "careful", "random", "all"], default="mpc")
     p.add_argument("--episodes", type=int, default=10)

@@ -25,10 +25,14 @@ of the lane (and the heading within ``BicycleEgo.MAX_HEADING``); on
 ``HighwayOvertake-v0`` the lateral velocity is limited so the body stays out,
 and a meta agent's lane change is abandoned.
 
-Fail-safes (each counted): the parts' sets do not intersect (``conflict``): the
-lead's ``S(x)`` wins and the input nearest to the traffic part's set within it is
-applied; the active set's ``S(x)`` is empty (``failsafe``): full braking, no
-lateral motion; the traffic part alone is empty on ``highway-v0``: full braking.
+Fail-safes (each counted). The parts' sets do not intersect (``conflict``): first
+the responsibility for an entered lane's follower is dropped (the lead's set and
+self-safety are kept); if self-safety against the car ahead and ``S(x)`` still do
+not intersect, ``GuardianConfig.conflict`` decides: ``"traffic"`` (default) brakes
+for the car ahead with the lateral input of ``S(x)`` — the pair may then leave the
+safe set (6.8) by its speed bound —, ``"lead"`` keeps ``S(x)``. The active set's
+``S(x)`` is empty (``failsafe``): full braking, no lateral motion; the traffic
+part alone is empty on ``highway-v0``: full braking.
 
 ``info["guardian"]`` (the key is asserted free)::
 
@@ -80,7 +84,8 @@ class GuardianConfig:
     use_intention: bool = True    # lead part: switch to C_a / C_c once identified (Theorem 4)
     horizon: int = 10             # lead part: the estimator's window N
     priority: tuple = (0, 1)      # change throttle before steering
-    conflict: str = "lead"        # which part wins when their sets do not intersect: "lead" | "traffic"
+    conflict: str = "traffic"     # when self-safety against a car ahead and the lead's set do not intersect,
+                                  # which wins: "traffic" (brake for the car ahead) | "lead"
 
     def __post_init__(self):
         if self.conflict not in ("lead", "traffic"):
@@ -349,6 +354,7 @@ class Guardian(gym.Wrapper):
         scene = self._scene(base, lanes)
         speeds, why = self.traffic.self_safe_speeds(scene)
         self._note(why)
+        self._accel_self = self.ego_kin.accel_for_speeds(x[0], speeds)
         for lane in sorted(lanes - {self._home}):  # an entry under way: its follower stays safe
             fs, why = self.traffic.follower_speeds(scene, lane)
             speeds = intersect_intervals(speeds, fs)
@@ -393,24 +399,35 @@ class Guardian(gym.Wrapper):
         if view.query.polygons:
             self._stats["conflict_steps"] += 1
             self._note("conflict: the lead's and the traffic's admissible sets do not intersect")
-            return self._resolve_conflict(view, x, u, accel, lateral), "conflict"
+            if self._accel_self:  # 1. responsibility for followers yields to both sets
+                full = [tuple(self.env.unwrapped.params.v_ey_bounds)]
+                result = adm.override(x, u, pr, query=view.query.restricted(
+                    [(a, v) for a in self._accel_self for v in full]))
+                if result.feasible:
+                    self._note("responsibility for a follower not kept (the lead's set and self-safety come first)")
+                    return result.applied, "conflict"
+            return self._resolve_conflict(view, x, u, self._accel_self, lateral), "conflict"
         self._stats["failsafe_steps"] += 1
         self._note("failsafe: the state is outside the active invariant set")
         return np.array(FAILSAFE_INPUT, dtype=float), "failsafe"
 
     def _resolve_conflict(self, view, x, u, accel, lateral) -> np.ndarray:
-        """``conflict = "lead"``: the input of ``S(x)`` nearest to the traffic part's set (Theorem 4 holds,
-        responsibility may not); ``"traffic"``: the traffic part's input nearest to ``S(x)`` (responsibility
-        holds, the pair may leave the safe set)."""
+        """Self-safety against a car ahead and ``S(x)`` do not intersect.
+
+        ``conflict = "traffic"``: the lateral input of ``S(x)`` nearest to the agent's, and the
+        self-safe acceleration nearest to it (the ego brakes for the car ahead; the pair may leave the
+        safe set (6.8) by its speed bound); ``"lead"``: the input of ``S(x)`` nearest to the traffic
+        part's set (Theorem 4 holds; the car ahead may be hit if it brakes hard)."""
         target = u.copy()
         if accel:
             target[0] = nearest_in_intervals(accel, u[0])
         if lateral:
             target[1] = nearest_in_intervals(lateral, u[1])
-        if self.config.conflict == "lead" or not (accel and lateral):
-            return view.admissible.override(x, target, self.config.priority, query=view.query).applied
         near = view.admissible.override(x, target, self.config.priority, query=view.query).applied
-        return np.array([nearest_in_intervals(accel, near[0]), nearest_in_intervals(lateral, near[1])])
+        if self.config.conflict == "lead" or not accel:
+            return near
+        self._note("the lead's set yields to self-safety against the car ahead")
+        return np.array([nearest_in_intervals(accel, near[0]), near[1]])
 
     def _finish(self, base, ego, x, u, applied, changed, view, accel) -> None:
         applied = np.asarray(applied, dtype=float)
