@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rcis.cache import StaleCacheError, code_fingerprint, default_cache_dir, entry_path, load_region, save_region
+from rcis.cache import code_fingerprint, default_cache_dir, entry_path, try_load, try_save
 from rcis.invariant import outside_in
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PWAPiece, PWASystem
@@ -321,15 +321,11 @@ def load_or_build(p: CarFollowingParams, cache_dir=None, rebuild: bool = False, 
     cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint()}
     path = entry_path(cache_dir, "car-following", payload)
-    if path.exists() and not rebuild:
-        try:
-            region, info = load_region(path, payload)
-            return PolyhedralSet(p, region, info)
-        except StaleCacheError as exc:
-            if log:
-                log(f"refusing cache entry: {exc}; rebuilding")
+    hit = None if rebuild else try_load(path, payload, **({"log": log} if log else {}))
+    if hit is not None:
+        return PolyhedralSet(p, *hit)
     S = compute_polyhedral(p, progress=progress)
-    save_region(path, S.region, payload, S.info)
+    try_save(path, S.region, payload, S.info, **({"log": log} if log else {}))
     return S
 
 

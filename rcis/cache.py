@@ -6,12 +6,20 @@ fingerprint of the source code that computes sets). The file name carries the
 payload's hash. Loading checks the stored payload against the expected one and
 the arrays against their checksum; any difference raises ``StaleCacheError``
 with the first differing field, and the entry is never used.
+
+The cache heals: ``try_load`` turns a truncated, corrupt, foreign or unreadable
+entry (a folder where a file should be, a byte flipped) into one message naming
+the file and ``None`` (the caller recomputes); ``try_save`` writes atomically
+(temporary file in the same folder, flush, fsync, rename) and, when the folder
+cannot be written, warns once naming it and lets the product go on without a cache.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +66,7 @@ def _arrays_digest(arrays: dict) -> str:
 
 
 def save_region(path: Path, region: Region, payload: dict, info: dict) -> None:
+    """Write an entry atomically: a temporary file in the same folder, flushed and synced, then renamed."""
     arrays = {}
     for i, P in enumerate(region.pieces):
         arrays[f"A{i}"] = P.A
@@ -66,9 +75,16 @@ def save_region(path: Path, region: Region, payload: dict, info: dict) -> None:
             "pieces": len(region), "digest": _arrays_digest(arrays)}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, meta=np.array(json.dumps(meta)), **arrays)
-    os.replace(tmp, path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def load_region(path: Path, expected_payload: dict) -> tuple[Region, dict]:
@@ -78,15 +94,52 @@ def load_region(path: Path, expected_payload: dict) -> tuple[Region, dict]:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in z.files if k != "meta"}
-    except (OSError, ValueError, KeyError) as exc:
-        raise StaleCacheError(f"{path}: not a readable cache file ({exc})") from exc
+    except Exception as exc:  # BadZipFile, EOFError, zlib.error, OSError, ValueError, KeyError, ...
+        raise StaleCacheError(f"{path}: not a readable cache file ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(meta, dict):
+        raise StaleCacheError(f"{path}: not a cache entry (no meta record)")
     stored = meta.get("payload", {})
     if stored != expected_payload:
         raise StaleCacheError(f"{path}: built with {_first_difference(stored, expected_payload)}")
     if meta.get("digest") != _arrays_digest(arrays):
         raise StaleCacheError(f"{path}: the stored pieces do not match their checksum")
-    pieces = [Polyhedron(arrays[f"A{i}"], arrays[f"b{i}"]) for i in range(meta["pieces"])]
-    return Region(pieces, meta["dim"]), meta["info"]
+    try:
+        pieces = [Polyhedron(arrays[f"A{i}"], arrays[f"b{i}"]) for i in range(meta["pieces"])]
+        return Region(pieces, meta["dim"]), meta["info"]
+    except Exception as exc:
+        raise StaleCacheError(f"{path}: malformed entry ({type(exc).__name__}: {exc})") from exc
+
+
+def _warn(message: str) -> None:
+    print(f"[cache] {message}", file=sys.stderr, flush=True)
+
+
+def try_load(path: Path, payload: dict, log=_warn):
+    """``(region, info)`` from a valid entry, else ``None`` (absent, or refused with one message)."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        return load_region(path, payload)
+    except StaleCacheError as exc:
+        log(f"refusing cache entry: {exc}; recomputing")
+        return None
+
+
+_UNWRITABLE: set = set()
+
+
+def try_save(path: Path, region: Region, payload: dict, info: dict, log=_warn) -> bool:
+    """Store an entry (replacing what is there); a folder that cannot be written is warned about once."""
+    try:
+        save_region(path, region, payload, info)
+        return True
+    except OSError as exc:
+        folder = str(Path(path).parent)
+        if folder not in _UNWRITABLE:
+            _UNWRITABLE.add(folder)
+            log(f"cannot write the cache folder {folder} ({type(exc).__name__}: {exc}); going on without a cache")
+        return False
 
 
 def _first_difference(stored, expected, prefix="") -> str:

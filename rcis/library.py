@@ -8,7 +8,6 @@ induces a supervisor ``S_I(x)`` (``admissible``). Sets are cached on disk.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,8 +15,7 @@ from pathlib import Path
 from intention.models import IntentionModel, intention_models, left_lane, safe_set
 from intention.params import OvertakeParams
 from rcis.admissible import AdmissibleInputs
-from rcis.cache import (StaleCacheError, code_fingerprint, default_cache_dir, entry_path,
-                        load_region, payload_key, save_region)
+from rcis.cache import code_fingerprint, default_cache_dir, entry_path, payload_key, try_load, try_save
 from rcis.invariant import COVER_BUDGET, inside_out, stderr_progress
 from rcis.region import Region
 
@@ -97,16 +95,6 @@ def _compute(name: str, params: OvertakeParams, settings: LibrarySettings, seed:
                            "seconds": result.seconds, "history": result.history}
 
 
-def _load_or_none(path: Path, payload: dict):
-    if not path.exists():
-        return None
-    try:
-        return load_region(path, payload)
-    except StaleCacheError as exc:
-        print(f"[rcis] refusing cache entry: {exc}; rebuilding", file=sys.stderr)
-        return None
-
-
 def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySettings = LibrarySettings(),
                   cache_dir: Path | None = None, use_cache: bool = True, workers: int = 2,
                   quiet: bool = False) -> OvertakeLibrary:
@@ -116,13 +104,13 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
     sets: dict[str, InvariantSet] = {}
 
     def remember(name, region, info, payload, from_cache):
-        if not from_cache and use_cache:
-            save_region(entry_path(cache_dir, name, payload), region, payload, info)
+        if not from_cache:  # --rebuild (use_cache False) replaces whatever is there
+            try_save(entry_path(cache_dir, name, payload), region, payload, info)
         sets[name] = InvariantSet(name, region, info["iterations"], info["converged"], info["seconds"],
                                   from_cache, payload_key(payload), payload)
 
     def cached(name, payload):
-        return _load_or_none(entry_path(cache_dir, name, payload), payload) if use_cache else None
+        return try_load(entry_path(cache_dir, name, payload), payload) if use_cache else None
 
     bnd_payload = _payload("bounded_velocity", params, settings, "C_left")
     hit = cached("bounded_velocity", bnd_payload)
