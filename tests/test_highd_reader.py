@@ -140,3 +140,23 @@ def test_the_real_i80_sample_replays():
     result = replay(folder, ReplayConfig(seed=0))
     assert result["data_points"] > 50_000 and result["trajectories"] == 700
     assert set(result["override_rates"]) >= {"self_safety", "responsibility_trivial", "responsibility_ordered"}
+
+
+@pytest.mark.parametrize("kind", ["recordingMeta", "tracksMeta", "tracks"])
+def test_two_files_for_one_recording_are_refused_naming_both(generated, tmp_path, kind):
+    folder = _copy(generated, tmp_path)
+    shutil.copy(folder / f"01_{kind}.csv", folder / f"1_{kind}.csv")
+    with pytest.raises(HighDFormatError, match=rf"01_{kind}\.csv and 1_{kind}\.csv are both recording 1's {kind}"):
+        recording_ids(folder)
+
+
+def test_a_recording_named_without_leading_zero_reads_and_is_listed(generated, tmp_path):
+    from guardian.highd.replay import ReplayConfig, replay
+
+    folder = _copy(generated, tmp_path)
+    for p in list(folder.iterdir()):
+        p.rename(folder / p.name.replace("01_", "1_"))
+    assert recording_ids(folder) == [1]
+    r = replay(folder, ReplayConfig(seed=0))
+    assert r["recordings"] == 1 and r["recording_files"][0]["id"] == 1
+    assert r["recording_files"][0]["tracks"].endswith("1_tracks.csv")

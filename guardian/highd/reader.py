@@ -18,7 +18,7 @@ import pandas as pd
 
 from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, STR, file_name
 
-FILE_PATTERN = re.compile(r"^(\d+)_recordingMeta\.csv$")
+FILE_PATTERN = re.compile(r"^(\d+)_(recordingMeta|tracksMeta|tracks)\.csv$")
 
 
 class HighDFormatError(ValueError):
@@ -47,6 +47,26 @@ class Recording:
         return list(range(n_up + 3, n_up + n_low + 3))
 
 
+def recording_files(folder: Path) -> dict[int, dict[str, Path]]:
+    """``{id: {kind: path}}`` of a folder's HighD files; the id is the number before ``_`` (``1_`` = ``01_``).
+
+    Two files of the same recording and kind (``1_tracks.csv`` and ``01_tracks.csv``) are refused,
+    naming both: reading either would silently drop the other, reading both would count it twice.
+    """
+    found: dict[int, dict[str, Path]] = {}
+    for p in sorted(Path(folder).iterdir()):
+        m = FILE_PATTERN.match(p.name)
+        if not m:
+            continue
+        rid, kind = int(m.group(1)), m.group(2)
+        other = found.setdefault(rid, {}).get(kind)
+        if other is not None:
+            raise HighDFormatError(f"{folder}: {other.name} and {p.name} are both recording {rid}'s {kind}; "
+                                   f"keep one")
+        found[rid][kind] = p
+    return found
+
+
 def recording_ids(path: Path) -> list[int]:
     """Recording ids in a folder (from ``NN_recordingMeta.csv``), or of the one recording a file names."""
     path = Path(path)
@@ -57,7 +77,7 @@ def recording_ids(path: Path) -> list[int]:
         return [int(m.group(1))]
     if not path.is_dir():
         raise HighDFormatError(f"{path}: no such file or folder")
-    ids = sorted(int(m.group(1)) for p in path.iterdir() if (m := FILE_PATTERN.match(p.name)))
+    ids = sorted(rid for rid, kinds in recording_files(path).items() if "recordingMeta" in kinds)
     if not ids:
         raise HighDFormatError(f"{path}: no NN_recordingMeta.csv in this folder")
     return ids
@@ -139,7 +159,8 @@ def _markings(path: Path, value: str, column: str) -> list[float]:
 
 def read_recording(folder: Path, recording_id: int) -> Recording:
     folder = Path(folder)
-    paths = {kind: folder / file_name(recording_id, kind) for kind in FILES}
+    found = recording_files(folder).get(recording_id, {})
+    paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}
     meta_df = read_table(paths["recordingMeta"], FILES["recordingMeta"])
     if len(meta_df) != 1:
         raise HighDFormatError(f"{paths['recordingMeta']}: expected one row, found {len(meta_df)}")

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from guardian.highd.convert import ITHAData, to_itha
-from guardian.highd.reader import read_recording, recording_ids
+from guardian.highd.reader import read_recording, recording_files, recording_ids
 from itha.car_following import CarFollowingParams, MaximalSet, headway_floor
 from itha.highway import EgoSupervisor, HighwayParams
 
@@ -286,6 +286,12 @@ def _pool(workers: int, scheduler: str | None):
         yield None
 
 
+def _listing(folder: Path, ids) -> list[dict]:
+    """What was read: each recording's id and its three files."""
+    files = recording_files(folder)
+    return [{"id": rid, **{kind: str(path) for kind, path in sorted(files.get(rid, {}).items())}} for rid in ids]
+
+
 def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), contexts: bool = False,
            workers: int = 1, scheduler: str | None = None, progress=None, sensitivity: bool = False,
            measure_memory: bool = False) -> dict:
@@ -314,7 +320,8 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     n_parts = len(parts)
     del parts  # the concatenated arrays are all that is needed from here on
     result = {
-        "recordings": n_parts, "data_points": int(sum(c[0] for c in counts)),
+        "recordings": n_parts, "recording_files": _listing(folder, ids),
+        "data_points": int(sum(c[0] for c in counts)),
         "trajectories": int(sum(c[1] for c in counts)), "lane_changes": int(sum(c[2] for c in counts)),
         "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
         "train_disturbance_samples": int(len(train.d)), "dt": dt, "config": asdict(cfg),
