@@ -160,3 +160,58 @@ def test_a_recording_named_without_leading_zero_reads_and_is_listed(generated, t
     r = replay(folder, ReplayConfig(seed=0))
     assert r["recordings"] == 1 and r["recording_files"][0]["id"] == 1
     assert r["recording_files"][0]["tracks"].endswith("1_tracks.csv")
+
+
+def _write_bytes(folder, kind, fn):
+    path = folder / f"01_{kind}.csv"
+    path.write_bytes(fn(path.read_bytes()))
+    return path
+
+
+def _insert_after_line(data: bytes, n: int, extra: bytes) -> bytes:
+    at = _nth_line_start(data, n + 1)
+    return data[:at] + extra + data[at:]
+
+
+def _set_first_field(data: bytes, n: int, value: bytes) -> bytes:
+    """Physical line n's first field replaced by ``value``."""
+    at = _nth_line_start(data, n)
+    return data[:at] + value + data[data.index(b",", at):]
+
+
+def _nth_line_start(data: bytes, n: int) -> int:
+    pos = 0
+    for _ in range(n - 1):
+        pos = data.index(b"\n", pos) + 1
+    return pos
+
+
+BYTE_CASES = {
+    "undecodable byte": ("tracks", lambda d: d[:_nth_line_start(d, 5)] + b"\xff" + d[_nth_line_start(d, 5) + 1:],
+                         r"01_tracks\.csv: line 5, column 'frame': byte 0xff is not UTF-8"),
+    "empty file": ("recordingMeta", lambda d: b"", r"01_recordingMeta\.csv: line 1: the file is empty"),
+    "header only": ("tracksMeta", lambda d: d[:d.index(b"\n") + 1], r"01_tracksMeta\.csv: line 1: a header but no data"),
+    "blank lines above a bad row": ("tracks", lambda d: _set_first_field(_insert_after_line(d, 1, b"\n\n"), 6, b"X"),
+                                    r"01_tracks\.csv: line 6, column 'frame': 'X' is not an integer"),
+    "a quoted newline above a bad row": ("tracksMeta", lambda d: _set_first_field(
+        d.replace(b",Car,", b',"Ca\nr",', 1), 5, b"X"), r"01_tracksMeta\.csv: line 5, column 'id': 'X' is not an integer"),
+    "an id too large for an integer": ("tracksMeta", lambda d: d[:_nth_line_start(d, 2)] + b"1e20" + d[
+        _nth_line_start(d, 2) + len(d[_nth_line_start(d, 2):].split(b",", 1)[0]):],
+        r"01_tracksMeta\.csv: line 2, column 'id': 1e\+20 is not an integer of at most"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BYTE_CASES))
+def test_every_byte_is_accounted_for(generated, tmp_path, case):
+    kind, fn, pattern = BYTE_CASES[case]
+    folder = _copy(generated, tmp_path)
+    _write_bytes(folder, kind, fn)
+    with pytest.raises(HighDFormatError, match=pattern):
+        read_recording(folder, 1)
+
+
+def test_a_byte_order_mark_is_read_as_utf8(generated, tmp_path):
+    folder = _copy(generated, tmp_path)
+    for kind in ("recordingMeta", "tracksMeta", "tracks"):
+        _write_bytes(folder, kind, lambda d: b"\xef\xbb\xbf" + d)
+    assert read_recording(folder, 1).tracks.columns[0] == "frame"

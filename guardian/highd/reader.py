@@ -83,8 +83,29 @@ def recording_ids(path: Path) -> list[int]:
     return ids
 
 
-def _line(row_index) -> int:
-    return int(row_index) + 2  # header is line 1
+def _line(path: Path, row_index) -> int:
+    """The physical line (1-based) where data row ``row_index`` starts, as pandas numbers rows.
+
+    pandas skips blank lines and lets quoted fields span lines, so row + 2 is not the line. The
+    file is scanned only when an error is reported.
+    """
+    import csv
+    import io
+
+    text = Path(path).read_bytes().decode("utf-8-sig")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    record, target = -1, int(row_index) + 1  # record 0 is the header
+    while True:
+        start = reader.line_num + 1
+        try:
+            row = next(reader)
+        except StopIteration:
+            return start
+        if not row:
+            continue  # a blank line
+        record += 1
+        if record == target:
+            return start
 
 
 def read_table(path: Path, schema: dict) -> pd.DataFrame:
@@ -92,7 +113,8 @@ def read_table(path: Path, schema: dict) -> pd.DataFrame:
     path = Path(path)
     if not path.is_file():
         raise HighDFormatError(f"{path}: file is missing")
-    header = pd.read_csv(path, nrows=0).columns.tolist()
+    _check_bytes(path)
+    header = pd.read_csv(path, nrows=0, encoding="utf-8-sig").columns.tolist()
     missing = [c for c in schema if c not in header]
     extra = [c for c in header if c not in schema]
     if missing or extra:
@@ -100,26 +122,63 @@ def read_table(path: Path, schema: dict) -> pd.DataFrame:
         raise HighDFormatError(f"{path}: " + "; ".join(parts))
     dtypes = {c: ("float64" if t == INT else t) for c, t in schema.items()}  # ints checked below
     try:
-        df = pd.read_csv(path, dtype=dtypes, engine="c", na_filter=True)
+        df = pd.read_csv(path, dtype=dtypes, engine="c", na_filter=True, encoding="utf-8-sig")
     except pd.errors.ParserError as exc:  # a row with the wrong number of fields; pandas names the line
         raise HighDFormatError(f"{path}: malformed CSV: {str(exc).strip()}") from None
     except (ValueError, TypeError) as exc:
         _locate_type_error(path, schema)
         raise HighDFormatError(f"{path}: {exc}") from exc
+    if len(df) == 0:
+        raise HighDFormatError(f"{path}: line 1: a header but no data rows")
     _check_missing(path, df, schema)
     for c, t in schema.items():
         if t == INT:
             col = df[c].to_numpy()
-            frac = np.flatnonzero(col != np.round(col))
+            frac = np.flatnonzero((col != np.round(col)) | (np.abs(col) > MAX_EXACT_INT))
             if len(frac):
                 r = frac[0]
-                raise HighDFormatError(f"{path}: line {_line(r)}, column {c!r}: {float(col[r]):g} is not an integer")
+                raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {float(col[r]):g} is not an integer"
+                                       + (f" of at most {MAX_EXACT_INT:.0f}" if col[r] == np.round(col[r]) else ""))
             df[c] = col.astype(np.int64)
     return df
 
 
+MAX_EXACT_INT = 2.0 ** 53  # integers read as float64 are exact up to this
+
+
+def _check_bytes(path: Path) -> None:
+    """UTF-8 (with or without BOM), not empty; an undecodable byte is named by line and column."""
+    import codecs
+
+    decoder, blank = codecs.getincrementaldecoder("utf-8")(), True
+    try:
+        with open(path, "rb") as fh:
+            while chunk := fh.read(1 << 24):  # 16 MiB at a time: HighD track files are ~200 MB
+                blank = blank and not chunk.strip()
+                decoder.decode(chunk)
+        decoder.decode(b"", final=True)
+    except UnicodeDecodeError:
+        _name_undecodable_byte(path)
+    if blank:
+        raise HighDFormatError(f"{path}: line 1: the file is empty (no header)")
+
+
+def _name_undecodable_byte(path: Path) -> None:
+    data = path.read_bytes()
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line_start = data.rfind(b"\n", 0, exc.start) + 1
+        line = data.count(b"\n", 0, exc.start) + 1
+        field = data[line_start:exc.start].count(b",")
+        header = data.split(b"\n", 1)[0].decode("utf-8", "replace").lstrip("\ufeff").strip().split(",")
+        column = header[field] if field < len(header) and line > 1 else f"field {field + 1}"
+        raise HighDFormatError(f"{path}: line {line}, column {column!r}: byte 0x{data[exc.start]:02x} is not "
+                               f"UTF-8") from None
+
+
 def _locate_type_error(path: Path, schema: dict) -> None:
-    raw = pd.read_csv(path, dtype=str, keep_default_na=False)
+    raw = pd.read_csv(path, dtype=str, keep_default_na=False, encoding="utf-8-sig")
     for c, t in schema.items():
         if t == STR:
             continue
@@ -130,7 +189,7 @@ def _locate_type_error(path: Path, schema: dict) -> None:
         if len(bad):
             r = bad[0]
             kind = "an integer" if t == INT else "a number"
-            raise HighDFormatError(f"{path}: line {_line(r)}, column {c!r}: {raw[c].iloc[r]!r} is not {kind}")
+            raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {raw[c].iloc[r]!r} is not {kind}")
 
 
 def _check_missing(path: Path, df: pd.DataFrame, schema: dict) -> None:
@@ -142,7 +201,7 @@ def _check_missing(path: Path, df: pd.DataFrame, schema: dict) -> None:
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
             what = "missing value (NaN)" if pd.isna(col.iloc[r]) else f"non-finite value {float(col.iloc[r]):g}"
-            raise HighDFormatError(f"{path}: line {_line(r)}, column {c!r}: {what}")
+            raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {what}")
 
 
 def _markings(path: Path, value: str, column: str) -> list[float]:
@@ -189,15 +248,15 @@ def _check_tracks_meta(path: Path, tmeta: pd.DataFrame) -> None:
     if dup.any():
         rows = np.flatnonzero(dup)
         raise HighDFormatError(f"{path}: id {int(tmeta['id'].iloc[rows[0]])} appears on lines "
-                               f"{[_line(r) for r in rows[:5]]}")
+                               f"{[_line(path, r) for r in rows[:5]]}")
     bad = np.flatnonzero(~tmeta["drivingDirection"].isin([1, 2]).to_numpy())
     if len(bad):
         r = bad[0]
-        raise HighDFormatError(f"{path}: line {_line(r)}, column 'drivingDirection': "
+        raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'drivingDirection': "
                                f"{int(tmeta['drivingDirection'].iloc[r])} is not 1 or 2")
     bad = np.flatnonzero((tmeta["width"] <= 0).to_numpy() | (tmeta["height"] <= 0).to_numpy())
     if len(bad):
-        raise HighDFormatError(f"{path}: line {_line(bad[0])}: vehicle size must be positive")
+        raise HighDFormatError(f"{path}: line {_line(path, bad[0])}: vehicle size must be positive")
 
 
 def _check_tracks(path: Path, rec: Recording) -> None:
@@ -209,18 +268,18 @@ def _check_tracks(path: Path, rec: Recording) -> None:
     dup = np.flatnonzero(same & (sf[1:] == sf[:-1]))
     if len(dup):
         a, b = sorted((order[dup[0]], order[dup[0] + 1]))
-        raise HighDFormatError(f"{path}: (id {si[dup[0]]}, frame {sf[dup[0]]}) appears on lines {_line(a)} "
-                               f"and {_line(b)}")
+        raise HighDFormatError(f"{path}: (id {si[dup[0]]}, frame {sf[dup[0]]}) appears on lines {_line(path, a)} "
+                               f"and {_line(path, b)}")
     skip = np.flatnonzero(same & (sf[1:] - sf[:-1] != 1))
     if len(skip):
         k = skip[0]
-        raise HighDFormatError(f"{path}: line {_line(order[k + 1])}: track {si[k]} jumps from frame {sf[k]} "
+        raise HighDFormatError(f"{path}: line {_line(path, order[k + 1])}: track {si[k]} jumps from frame {sf[k]} "
                                f"to frame {sf[k + 1]}")
     known = rec.tracks_meta.set_index("id")
     unknown = np.flatnonzero(~np.isin(ids, known.index.to_numpy()))
     if len(unknown):
         r = unknown[0]
-        raise HighDFormatError(f"{path}: line {_line(r)}, column 'id': vehicle {ids[r]} is not in "
+        raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'id': vehicle {ids[r]} is not in "
                                f"{file_name(rec.id, 'tracksMeta')}")
     counts = pd.Series(ids).value_counts().reindex(known.index, fill_value=0)
     firsts = pd.Series(frames).groupby(ids).min().reindex(known.index)
@@ -239,12 +298,12 @@ def _check_tracks(path: Path, rec: Recording) -> None:
         bad = np.flatnonzero((direction == d) & ~ok)
         if len(bad):
             r = bad[0]
-            raise HighDFormatError(f"{path}: line {_line(r)}, column 'laneId': lane {lanes[r]} cannot hold vehicle "
+            raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'laneId': lane {lanes[r]} cannot hold vehicle "
                                    f"{ids[r]} (direction {d}); the markings give lanes {rec.lanes_of(d)}")
     for c in ("precedingId", "followingId"):
         col = t[c].to_numpy()
         bad = np.flatnonzero((col != 0) & ~np.isin(col, known.index.to_numpy()))
         if len(bad):
             r = bad[0]
-            raise HighDFormatError(f"{path}: line {_line(r)}, column {c!r}: vehicle {col[r]} is not in "
+            raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: vehicle {col[r]} is not in "
                                    f"{file_name(rec.id, 'tracksMeta')}")
