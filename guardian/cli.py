@@ -235,7 +235,7 @@ def cmd_replay(args) -> int:
         print("guardian replay: --workers must be at least 1", file=sys.stderr)
         return 2
     cfg = ReplayConfig(seed=args.seed, h_min=args.h_min, u_min=args.u_min, u_max=args.u_max, v_max=args.v_max,
-                       input_bounds=args.input_bounds)
+                       input_bounds=args.input_bounds, plausibility=not args.no_plausibility)
     try:
         result = replay(args.path, cfg, contexts=args.contexts, workers=args.workers, scheduler=args.scheduler,
                         progress=_stderr_counter("replay"), sensitivity=args.sensitivity)
@@ -443,6 +443,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input-bounds", choices=["fixed", "data"], default="fixed",
                    help="U from --u-min/--u-max, or the training inputs' quantiles (per context with --contexts)")
     p.add_argument("--rerun", type=Path, default=None, help="record the first recording with its overrides (.rrd)")
+    p.add_argument("--no-plausibility", action="store_true",
+                   help="read files that break the plausibility rules (frame rate, speeds, accelerations, markings)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser("serve", help="the guardian as an HTTP JSON service (one estimator per session)")

@@ -215,3 +215,47 @@ def test_a_byte_order_mark_is_read_as_utf8(generated, tmp_path):
     for kind in ("recordingMeta", "tracksMeta", "tracks"):
         _write_bytes(folder, kind, lambda d: b"\xef\xbb\xbf" + d)
     assert read_recording(folder, 1).tracks.columns[0] == "frame"
+
+
+PLAUSIBILITY_CASES = {
+    "frame rate 1e12": ("recordingMeta", lambda df: df.assign(frameRate="1000000000000"),
+                        r"01_recordingMeta\.csv: line 2, column 'frameRate': 1000000000000 Hz is outside \[1, 100\]"),
+    "x and y headers swapped": ("tracks", lambda df: df.rename(columns={"x": "y", "y": "x"})[list(df.columns)],
+                                r"01_tracks\.csv: line \d+, column 'y': the box centre .* lies outside direction"),
+    "a speed of 300 m/s": ("tracks", lambda df: df.assign(xVelocity=df["xVelocity"].mask(df.index == 4, "300")),
+                           r"line 6, column 'xVelocity': \|300\| m/s exceeds 70 m/s"),
+    "an acceleration of 50 m/s^2": ("tracks", lambda df: df.assign(
+        xAcceleration=df["xAcceleration"].mask(df.index == 2, "-50")), r"line 4, column 'xAcceleration'"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(PLAUSIBILITY_CASES))
+def test_implausible_recordings_are_refused_naming_the_rule(generated, tmp_path, case):
+    kind, fn, pattern = PLAUSIBILITY_CASES[case]
+    folder = _copy(generated, tmp_path)
+    _edit(folder, kind, fn)
+    with pytest.raises(HighDFormatError, match=pattern) as err:
+        read_recording(folder, 1)
+    assert "--no-plausibility" in str(err.value)
+    if case != "x and y headers swapped":  # swapped axes also break the lanes' structure
+        assert read_recording(folder, 1, plausibility=False).id == 1
+
+
+def test_a_vehicle_without_frames_is_refused(generated, tmp_path):
+    folder = _copy(generated, tmp_path)
+    _edit(folder, "tracksMeta", lambda df: pd.concat([df, df.iloc[[0]].assign(id="9999", numFrames="0")]))
+    with pytest.raises(HighDFormatError, match=r"01_tracksMeta\.csv: line \d+, column 'numFrames': 0; a vehicle has"):
+        read_recording(folder, 1)
+
+
+def test_no_plausibility_is_named_in_the_replay_output(generated, tmp_path, capsys):
+    import json
+
+    from guardian.cli import main
+
+    folder = _copy(generated, tmp_path)
+    _edit(folder, "tracks", lambda df: df.assign(xVelocity=df["xVelocity"].mask(df.index == 4, "300")))
+    assert main(["replay", str(folder), "--json"]) == 2
+    assert "exceeds 70 m/s" in capsys.readouterr().err
+    assert main(["replay", str(folder), "--no-plausibility", "--v-max", "400", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["plausibility"] is False

@@ -10,13 +10,13 @@ on the other carriageway. Nothing is dropped, clipped or guessed.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, STR, file_name
+from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, PLAUSIBILITY, STR, file_name
 
 FILE_PATTERN = re.compile(r"^(\d+)_(recordingMeta|tracksMeta|tracks)\.csv$")
 
@@ -34,6 +34,7 @@ class Recording:
     tracks: pd.DataFrame
     upper_markings: list
     lower_markings: list
+    paths: dict = field(default_factory=dict)  # kind -> the file read
 
     @property
     def frame_rate(self) -> int:
@@ -216,7 +217,7 @@ def _markings(path: Path, value: str, column: str) -> list[float]:
     return marks
 
 
-def read_recording(folder: Path, recording_id: int) -> Recording:
+def read_recording(folder: Path, recording_id: int, plausibility: bool = True) -> Recording:
     folder = Path(folder)
     found = recording_files(folder).get(recording_id, {})
     paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}
@@ -237,10 +238,41 @@ def read_recording(folder: Path, recording_id: int) -> Recording:
     lower = _markings(paths["recordingMeta"], meta["lowerLaneMarkings"], "lowerLaneMarkings")
     tmeta = read_table(paths["tracksMeta"], FILES["tracksMeta"])
     tracks = read_table(paths["tracks"], FILES["tracks"])
-    rec = Recording(recording_id, folder, meta, tmeta, tracks, upper, lower)
+    rec = Recording(recording_id, folder, meta, tmeta, tracks, upper, lower, paths)
     _check_tracks_meta(paths["tracksMeta"], tmeta)
     _check_tracks(paths["tracks"], rec)
+    if plausibility:
+        _check_plausibility(rec)
     return rec
+
+
+def _check_plausibility(rec: Recording) -> None:
+    """The rules of ``schema.PLAUSIBILITY``; each refusal names the rule and how to go on."""
+    hint = "(a plausibility rule; --no-plausibility reads it anyway)"
+    lo, hi = PLAUSIBILITY["frameRate"]
+    if not lo <= rec.frame_rate <= hi:
+        raise HighDFormatError(f"{rec.paths['recordingMeta']}: line 2, column 'frameRate': {rec.frame_rate} Hz is "
+                               f"outside [{lo}, {hi}] {hint}")
+    t, path = rec.tracks, rec.paths["tracks"]
+    for columns, bound, what in ((("xVelocity", "yVelocity"), PLAUSIBILITY["speed"], "m/s"),
+                                 (("xAcceleration", "yAcceleration"), PLAUSIBILITY["acceleration"], "m/s^2")):
+        for c in columns:
+            col = t[c].to_numpy()
+            bad = np.flatnonzero(np.abs(col) > bound)
+            if len(bad):
+                r = bad[0]
+                raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: |{col[r]:g}| {what} exceeds "
+                                       f"{bound:g} {what} {hint}")
+    direction = rec.tracks_meta.set_index("id")["drivingDirection"].reindex(t["id"]).to_numpy()
+    centre = (t["y"] + t["height"] / 2).to_numpy()
+    margin = PLAUSIBILITY["outside_markings"]
+    for d, marks in ((1, rec.upper_markings), (2, rec.lower_markings)):
+        bad = np.flatnonzero((direction == d) & ((centre < marks[0] - margin) | (centre > marks[-1] + margin)))
+        if len(bad):
+            r = bad[0]
+            raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'y': the box centre {centre[r]:.2f} m lies "
+                                   f"outside direction {d}'s lane markings [{marks[0]:g}, {marks[-1]:g}] by more than "
+                                   f"{margin:g} m {hint}")
 
 
 def _check_tracks_meta(path: Path, tmeta: pd.DataFrame) -> None:
@@ -257,6 +289,11 @@ def _check_tracks_meta(path: Path, tmeta: pd.DataFrame) -> None:
     bad = np.flatnonzero((tmeta["width"] <= 0).to_numpy() | (tmeta["height"] <= 0).to_numpy())
     if len(bad):
         raise HighDFormatError(f"{path}: line {_line(path, bad[0])}: vehicle size must be positive")
+    bad = np.flatnonzero((tmeta["numFrames"] < 1).to_numpy())
+    if len(bad):
+        r = bad[0]
+        raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'numFrames': {int(tmeta['numFrames'].iloc[r])}; "
+                               f"a vehicle has at least one frame")
 
 
 def _check_tracks(path: Path, rec: Recording) -> None:
@@ -288,7 +325,7 @@ def _check_tracks(path: Path, rec: Recording) -> None:
         vid = wrong.index[np.argmax(wrong.to_numpy())]
         row = known.loc[vid]
         first = int(firsts[vid]) if counts[vid] else -1
-        raise HighDFormatError(f"{rec.folder / file_name(rec.id, 'tracksMeta')}: vehicle {vid}: numFrames "
+        raise HighDFormatError(f"{rec.paths['tracksMeta']}: vehicle {vid}: numFrames "
                                f"{int(row['numFrames'])} / initialFrame {int(row['initialFrame'])} disagree "
                                f"with {path.name} ({int(counts[vid])} frames from {first})")
     direction = known["drivingDirection"].reindex(ids).to_numpy()

@@ -51,6 +51,7 @@ class ReplayConfig:
     u_max: float = 4.0
     v_max: float = 60.0     # m/s; a speed above it is refused as outside the model
     input_bounds: str = "fixed"  # "fixed": U = [u_min, u_max]; "data": the training inputs' order statistics
+    plausibility: bool = True    # the reader's plausibility rules (schema.PLAUSIBILITY); off: --no-plausibility
 
     def __post_init__(self):
         if self.input_bounds not in ("fixed", "data"):
@@ -80,8 +81,8 @@ class RecordingPart:
 
 
 def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_max: float,
-                      keep_inputs: bool = True, keep_contexts: bool = True) -> RecordingPart:
-    rec = read_recording(Path(folder), rid)
+                      keep_inputs: bool = True, keep_contexts: bool = True, plausibility: bool = True) -> RecordingPart:
+    rec = read_recording(Path(folder), rid, plausibility)
     data = to_itha(rec)
     too_fast = np.flatnonzero(data.v > v_max)
     if len(too_fast):
@@ -247,7 +248,8 @@ def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
 # ---- the whole replay ---------------------------------------------------------------------------------
 def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str | None, progress,
                     keep_inputs: bool, keep_contexts: bool):
-    args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max, keep_inputs, keep_contexts) for rid in ids]
+    args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max, keep_inputs, keep_contexts, cfg.plausibility)
+            for rid in ids]
     if scheduler:
         from dask.distributed import Client, as_completed
 
@@ -326,6 +328,8 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
         "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
         "train_disturbance_samples": int(len(train.d)), "dt": dt, "config": asdict(cfg),
     }
+    if not cfg.plausibility:
+        result["plausibility"] = False  # named in the output: the reader's plausibility rules were off
     t1 = time.perf_counter()
     with _pool(workers, scheduler) as pool:
         result.update(evaluate(cfg, dt, train, test, events, contexts, pool))

@@ -52,3 +52,13 @@ FILES = {"recordingMeta": RECORDING_META, "tracksMeta": TRACKS_META, "tracks": T
 
 def file_name(recording_id: int, kind: str) -> str:
     return f"{recording_id:02d}_{kind}.csv"
+
+
+# Plausibility: what a real highway recording must satisfy (the reader refuses the rest, naming the rule;
+# ``guardian replay --no-plausibility`` lets an expert go on). One place; the README lists them.
+PLAUSIBILITY = {
+    "frameRate": (1, 100),        # [Hz] drones record at 25, NGSIM at 10
+    "speed": 70.0,                # [m/s] |xVelocity|, |yVelocity| at most this (252 km/h)
+    "acceleration": 20.0,         # [m/s^2] |xAcceleration|, |yAcceleration| at most this (2 g)
+    "outside_markings": 2.0,      # [m] a box centre lies at most this far beyond its carriageway's outer markings
+}
