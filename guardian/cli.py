@@ -227,6 +227,20 @@ def cmd_highd_generate(args) -> int:
     return 0
 
 
+def cmd_data_convert_ngsim(args) -> int:
+    from guardian.highd.ngsim import convert_ngsim
+    from guardian.highd.reader import HighDFormatError
+
+    try:
+        result = convert_ngsim(args.file, args.out, args.main_lanes, args.recording_id)
+    except (HighDFormatError, ValueError) as exc:
+        print(f"guardian data convert ngsim: {exc}", file=sys.stderr)
+        return 2
+    _emit(result, args.json, f"wrote {result['vehicles']} vehicles, {result['rows']} rows to {args.out} "
+                             f"({result['ramp_rows_dropped']} rows on ramps dropped)")
+    return 0
+
+
 def cmd_replay(args) -> int:
     from guardian.highd.reader import HighDFormatError
     from guardian.highd.replay import ReplayConfig, car_following_params, replay, self_safety_overrides
@@ -428,6 +442,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--first-id", type=int, default=1, help="id of the first recording (NN in the file names)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_highd_generate)
+    data = sub.add_parser("data", help="convert other trajectory data to HighD format")
+    dsub = data.add_subparsers(dest="data_command", required=True)
+    conv = dsub.add_parser("convert", help="convert a file")
+    csub = conv.add_subparsers(dest="convert_format", required=True)
+    p = csub.add_parser("ngsim", help="NGSIM US-101 / I-80 trajectories (txt or CSV export) to a HighD recording")
+    p.add_argument("file", type=Path)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--main-lanes", type=int, required=True,
+                   help="lanes 1..K are the main line (I-80: 6, US-101: 5); higher lane ids are ramps")
+    p.add_argument("--recording-id", type=int, default=1)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_data_convert_ngsim)
     p = sub.add_parser("replay", help="override rates of the ITHA guardian on HighD-format data (Table 7.2)")
     p.add_argument("path", nargs="?", type=Path, default=None,
                    help="a folder of recordings or one recording's file (default: the shipped sample)")
