@@ -33,6 +33,7 @@ import numpy as np
 
 from guardian.highd.convert import ITHAData, to_itha
 from guardian.highd.reader import read_recording, recording_files, recording_ids
+from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
 from itha.car_following import CarFollowingParams, MaximalSet, headway_floor
 from itha.highway import EgoSupervisor, HighwayParams
 
@@ -212,14 +213,36 @@ def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, even
     bounds = order_statistic_bounds(train.d, cfg.quantiles)
     p = car_following_params(cfg, dt, bounds, train.u_bounds(cfg))
     over = _overrides_chunked(p, test)
+    rss_default, rss_calibrated = RSSParams(), calibrated_rss(p, dt)
+    rss_over = longitudinal_violations(rss_default, test.v, test.h, test.vL)
+    rss_cal_over = longitudinal_violations(rss_calibrated, test.v, test.h, test.vL)
     out = {"disturbance_bounds": [bounds[0], bounds[1]], "input_bounds": [p.u_min, p.u_max],
            "override_rates": {"self_safety": float(over.mean()) if len(over) else 0.0,
                               "responsibility_trivial": _rate(_responsibility(p, events, "trivial", pool), events),
-                              "responsibility_ordered": _rate(_responsibility(p, events, "ordered", pool), events)},
-           "overrides": {"self_safety": int(over.sum())}}
+                              "responsibility_ordered": _rate(_responsibility(p, events, "ordered", pool), events),
+                              "rss_longitudinal": float(rss_over.mean()) if len(rss_over) else 0.0,
+                              "rss_longitudinal_calibrated": float(rss_cal_over.mean()) if len(rss_cal_over) else 0.0,
+                              "rss_cut_in": _rate(sum(not _rss_cut_in(rss_default, e) for e in events), events),
+                              "rss_cut_in_calibrated": _rate(sum(not _rss_cut_in(rss_calibrated, e) for e in events),
+                                                             events)},
+           "rss_params": {"default": asdict(rss_default), "calibrated": asdict(rss_calibrated),
+                          "default_source": "ad-rss vehicle dynamics as CARLA sets them "
+                                            "(LibCarla/source/carla/rss/RssCheck.cpp, GetDefaultVehicleDynamics)"},
+           "overrides": {"self_safety": int(over.sum()), "rss_longitudinal": int(rss_over.sum())}}
     if contexts:
         out["contexts"] = _context_rates(cfg, dt, train, test, bounds)
     return out
+
+
+def calibrated_rss(p, dt: float) -> RSSParams:
+    """RSS with the same calibration as the car-following set: response time one data step, the ego's
+    acceleration and braking from U, the front car's braking from D."""
+    return RSSParams(response_time=dt, accel_max=max(p.u_max, 0.0), brake_min=-p.u_min, brake_max=-p.d_min)
+
+
+def _rss_cut_in(params: RSSParams, e) -> bool:
+    target = int(e.lane[e.ego]) + (1 if e.trigger == "left" else -1)
+    return cut_in_safe(params, e.p, e.v, e.lane, e.length, e.ego, target)
 
 
 def _rate(n: int, events) -> float:

@@ -1,0 +1,58 @@
+"""RSS beside ITHA: the longitudinal safe distance against ad-rss's own primitives, the cut-in check, replay."""
+import numpy as np
+import pytest
+
+from itha.rss import RSSParams, cut_in_safe, longitudinal_violations, safe_distance
+
+
+def test_safe_distance_by_hand():
+    # 20 m/s behind 20 m/s, defaults: 20 + 1.75 + 23.5^2 / 8 - 20^2 / 16
+    assert np.isclose(safe_distance(RSSParams(), 20.0, 20.0), 21.75 + 23.5 ** 2 / 8 - 25.0)
+    assert safe_distance(RSSParams(), 0.0, 40.0) == 0.0  # a fast leader needs no gap
+
+
+def test_safe_distance_agrees_with_ad_rss():
+    ad_rss = pytest.importorskip("ad_rss")
+    from ad_rss import physics as ph
+
+    core = ad_rss.rss.core
+    p = RSSParams()
+    rng = np.random.default_rng(0)
+    for v_r, v_f in rng.uniform(0, 40, size=(200, 2)):
+        speed, offset, stop_r, stop_f = ph.Speed(0.0), ph.Distance(0.0), ph.Distance(0.0), ph.Distance(0.0)
+        assert core.calculateSpeedAndDistanceOffset(ph.Duration(p.response_time), ph.Speed(v_r),
+                                                    ph.Duration(p.response_time), ph.Speed(100.0),
+                                                    ph.Acceleration(p.accel_max), ph.Acceleration(-p.brake_min),
+                                                    speed, offset)
+        assert core.calculateStoppingDistance(speed, ph.Acceleration(-p.brake_min), stop_r)
+        assert core.calculateStoppingDistance(ph.Speed(v_f), ph.Acceleration(-p.brake_max), stop_f)
+        theirs = max(offset.toBaseType + stop_r.toBaseType - stop_f.toBaseType, 0.0)  # properties here
+        assert np.isclose(safe_distance(p, v_r, v_f), theirs, atol=1e-6)
+
+
+def test_violations_need_a_leader():
+    p = RSSParams()
+    out = longitudinal_violations(p, [20.0, 20.0, 20.0], [10.0, np.inf, 200.0], [20.0, 40.0, 20.0])
+    assert out.tolist() == [True, False, False]
+
+
+def test_cut_in_checks_both_new_neighbours():
+    p = RSSParams()
+    pos, v, length = [100.0, 200.0, 60.0], [20.0, 20.0, 30.0], [5.0, 5.0, 5.0]
+    assert cut_in_safe(p, pos, v, [1, 2, 1], length, ego=0, target_lane=2)   # leader 95 m ahead
+    assert not cut_in_safe(p, pos, v, [1, 2, 2], length, ego=0, target_lane=2)  # a fast follower 35 m behind
+    assert not cut_in_safe(p, [100.0, 120.0], [20.0, 20.0], [1, 2], [5.0, 5.0], ego=0, target_lane=2)
+
+
+def test_replay_reports_rss_beside_itha():
+    from pathlib import Path
+
+    from guardian.highd.replay import ReplayConfig, replay
+
+    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "i80_sample"
+    r = replay(folder, ReplayConfig(seed=0))
+    rates = r["override_rates"]
+    assert {"self_safety", "responsibility_trivial", "responsibility_ordered", "rss_longitudinal",
+            "rss_longitudinal_calibrated", "rss_cut_in", "rss_cut_in_calibrated"} <= set(rates)
+    assert rates["rss_longitudinal"] > rates["self_safety"]  # ρ = 1 s against one data step
+    assert r["rss_params"]["default"] == {"response_time": 1.0, "accel_max": 3.5, "brake_min": 4.0, "brake_max": 8.0}
