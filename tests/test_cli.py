@@ -105,7 +105,9 @@ def test_highd_generate_and_replay_json(tmp_path, capsys):
     assert code == 0
     for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
         assert key in data
-    assert set(data["override_rates"]) == {"self_safety", "responsibility_trivial", "responsibility_ordered"}
+    assert set(data["override_rates"]) == {"self_safety", "responsibility_trivial", "responsibility_ordered",
+                                           "rss_longitudinal", "rss_longitudinal_calibrated", "rss_cut_in",
+                                           "rss_cut_in_calibrated"}
     from guardian.rerun_log import read_entities
     ents = read_entities(tmp_path / "r.rrd")
     assert ents.get("/road/vehicles", 0) > 100 and ents.get("/road/markings", 0) == 1
