@@ -172,8 +172,52 @@ class HighwayRecorder:
 
 
 # ---- HighD-format recordings ------------------------------------------------------------------------
+def highd_blueprint():
+    """The layout a HighD recording opens with: the road on the left, per-vehicle series and events right."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial2DView(origin="/road", name="road (image coordinates, red = overridden)"),
+        rrb.Vertical(rrb.TimeSeriesView(origin="/vehicles", name="per vehicle: speed, gap, input, admissible input"),
+                     rrb.TextLogView(origin="/events", name="overrides and lane changes"), row_shares=[3, 1]),
+        column_shares=[3, 2]), collapse_panels=True)
+
+
+def _log_vehicle_series(rec, data, params) -> None:
+    """``vehicles/ID/{speed,gap,input,admissible/low,admissible/high}`` on the ``frame`` timeline.
+
+    The admissible interval is the self-safe input set (7.4) of the closed-form car-following set
+    (its hull when it is a union); absent where it is empty or there is no leader.
+    """
+    from itha.car_following import MaximalSet, admissible_inputs
+
+    S = MaximalSet(params)
+    n = len(data.v)
+    low, high = np.full(n, np.nan), np.full(n, np.nan)
+    for k in range(n):
+        if np.isfinite(data.h[k]) and 0 <= data.v[k] <= params.v_max and 0 <= data.vL[k] <= params.v_max:
+            iv = admissible_inputs(S, (float(data.v[k]), float(data.h[k]), float(data.vL[k])))
+            if iv:
+                low[k], high[k] = min(a for a, _ in iv), max(b for _, b in iv)
+    order = np.lexsort((data.frame, data.vehicle))
+    vehicles, frames = data.vehicle[order], data.frame[order]
+    series = {"speed": data.v[order], "gap": data.h[order], "input": data.u[order],
+              "admissible/low": low[order], "admissible/high": high[order]}
+    starts = np.flatnonzero(np.r_[True, vehicles[1:] != vehicles[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(vehicles)]):
+        vid = int(vehicles[a])
+        for name, values in series.items():
+            vals = values[a:b]
+            keep = np.isfinite(vals)
+            if keep.any():
+                rec.send_columns(f"vehicles/{vid}/{name}", indexes=[rr.TimeColumn("frame", sequence=frames[a:b][keep])],
+                                 columns=rr.Scalars.columns(scalars=vals[keep]))
+
+
 def log_highd_recording(path: Path, folder: Path, recording_id: int, params, overrides_of) -> dict:
-    """One recording in image coordinates: lane markings, every vehicle per frame, override events.
+    """One recording: lane markings, every vehicle per frame (red where overridden), per-vehicle time
+    series of speed, gap, input and the admissible input interval, override and lane-change events; it
+    opens with ``highd_blueprint``.
 
     ``overrides_of(data)`` returns a boolean per data point of ``guardian.highd.convert.to_itha``;
     vehicles with an override at a frame are drawn red and listed in ``events/override``.
@@ -186,7 +230,8 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
     over = overrides_of(data)
     flagged = {(int(v), int(f)) for v, f in zip(data.vehicle[over], data.frame[over])}
     rec = rr.RecordingStream("guardian-highd")
-    rec.save(str(path))
+    rec.save(str(path), default_blueprint=highd_blueprint())
+    _log_vehicle_series(rec, data, params)
     length = 450.0
     marks = rec_data.upper_markings + rec_data.lower_markings
     rec.log("road/markings", rr.LineStrips2D([[[0.0, m], [length, m]] for m in marks]), static=True)

@@ -259,3 +259,11 @@ def test_no_plausibility_is_named_in_the_replay_output(generated, tmp_path, caps
     assert "exceeds 70 m/s" in capsys.readouterr().err
     assert main(["replay", str(folder), "--no-plausibility", "--v-max", "400", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["plausibility"] is False
+
+
+def test_frames_may_start_anywhere(generated, tmp_path):
+    folder = _copy(generated, tmp_path)
+    _edit(folder, "tracks", lambda df: df.assign(frame=(df["frame"].astype(int) + 5000).astype(str)))
+    _edit(folder, "tracksMeta", lambda df: df.assign(initialFrame=(df["initialFrame"].astype(int) + 5000).astype(str),
+                                                     finalFrame=(df["finalFrame"].astype(int) + 5000).astype(str)))
+    assert read_recording(folder, 1).tracks["frame"].min() > 5000

@@ -99,3 +99,21 @@ def test_shipped_sample_is_the_default():
 def test_speed_above_v_max_is_refused(folder):
     with pytest.raises(ValueError, match=r"above v_max = 10\.0"):
         replay(folder, ReplayConfig(v_max=10.0))
+
+
+def test_rerun_of_real_data_has_per_vehicle_series_and_a_blueprint(tmp_path):
+    from pathlib import Path
+
+    from rerun.chunk import RrdReader
+
+    from guardian.cli import main
+    from guardian.rerun_log import read_entities
+
+    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "i80_sample"
+    rrd = tmp_path / "i80.rrd"
+    assert main(["replay", str(folder), "--rerun", str(rrd), "--json"]) == 0
+    entities = read_entities(rrd)
+    for name in ("speed", "gap", "input", "admissible/low", "admissible/high"):
+        assert sum(1 for e in entities if e.startswith("/vehicles/") and e.endswith(name)) > 100, name
+    assert entities.get("/road/vehicles", 0) == 3000 and entities.get("/road/markings") == 1
+    assert len(list(RrdReader(str(rrd)).blueprints())) == 1
