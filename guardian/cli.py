@@ -13,10 +13,14 @@ def _emit(result: dict, as_json: bool, text: str) -> None:
 
 
 def _library(args):
+    from intention.params import OvertakeParams
     from rcis.library import LibrarySettings, build_library, replace_settings
 
     settings = replace_settings(LibrarySettings(), intention_max_iterations=args.iterations)
-    return build_library(settings=settings, cache_dir=args.cache_dir, use_cache=not args.rebuild,
+    params = OvertakeParams()
+    if getattr(args, "ego_speed_min", None) is not None:
+        params = OvertakeParams(v_ex_bounds=(args.ego_speed_min, params.v_ex_bounds[1]))
+    return build_library(params=params, settings=settings, cache_dir=args.cache_dir, use_cache=not args.rebuild,
                          workers=args.workers)
 
 
@@ -184,6 +188,7 @@ def cmd_rollout_highway_env(args) -> int:
             r = highway_rollouts(args.env, args.agent, args.episodes, args.seed, action=args.action,
                                  guardian=not args.no_guardian, library=library, intention=intention,
                                  disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
+                                 env_config={"params": library.params} if library is not None else None,
                                  progress=_stderr_counter(label), recorder=recorder,
                                  video_dir=(args.video / (intention or "all")) if args.video else None)
         except ConfigError as exc:
@@ -345,6 +350,13 @@ def _combine(runs: list) -> dict:
     return out
 
 
+def _ego_speed_min(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value < 36.0:
+        raise argparse.ArgumentTypeError(f"--ego-speed-min must be in [0, 36) m/s, got {text}")
+    return value
+
+
 def _library_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--iterations", type=int, default=None,
                    help="inside-out iterations for the aggressive and cautious sets (default 5)")
@@ -352,6 +364,9 @@ def _library_options(p: argparse.ArgumentParser) -> None:
                    help="where computed sets are cached (default $GUARDIAN_CACHE_DIR or ~/.cache/guardian)")
     p.add_argument("--rebuild", action="store_true", help="ignore the cache and recompute")
     p.add_argument("--workers", type=int, default=2, help="processes for the intention sets (default 2)")
+    p.add_argument("--ego-speed-min", type=_ego_speed_min, default=None, metavar="V",
+                   help="the safe set's lowest ego speed v_ex^min (default: the dissertation's 16 m/s; 0 lets the "
+                        "ego wait behind the lead instead of having to overtake)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 

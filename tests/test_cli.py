@@ -159,3 +159,20 @@ def test_rollout_env_refuses_what_it_cannot_run(library, cache_dir, capsys):
     assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--traffic", "-1"]) == 2
     err = capsys.readouterr().err
     assert "nowhere-v0" in err and "nobody" in err and "--action continuous" in err and "--traffic" in err
+
+
+def test_ego_speed_min_reaches_the_sets_and_the_env(tmp_path, capsys):
+    import pytest
+
+    code, data = run_json(capsys, ["rollout", "--env", "guardian/HighwayOvertake-v0", "--agent", "idle",
+                                   "--episodes", "1", "--ego-speed-min", "0", "--iterations", "0",
+                                   "--cache-dir", str(tmp_path), "--json"])
+    assert code == 0 and data["safety_violations"] == 0
+    from guardian.cli import _library, build_parser
+
+    args = build_parser().parse_args(["rcis", "build", "--ego-speed-min", "0", "--iterations", "0",
+                                      "--cache-dir", str(tmp_path)])
+    assert _library(args).params.v_ex_bounds == (0.0, 36.0)
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["rcis", "build", "--ego-speed-min", "40"])
+    assert "--ego-speed-min must be in [0, 36)" in capsys.readouterr().err
