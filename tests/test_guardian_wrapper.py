@@ -151,3 +151,27 @@ def test_render_adds_the_guardian_panel(library):
     assert framed.shape[0] == plain.shape[0] + PANEL_HEIGHT
     assert not np.array_equal(framed[-PANEL_HEIGHT:], np.full_like(framed[-PANEL_HEIGHT:], 245))
     env.close()
+
+
+def test_a_conflict_is_said_counted_and_resolved_as_documented(library):
+    """Ego straddling the lane line behind a slow lead at its lowest speed, a fast car just behind in the
+    left lane: the follower's responsibility and S(x) do not intersect. The responsibility yields, the
+    step is counted, and the applied input keeps the pair in the active set (Theorem 4)."""
+    env = _guarded(library, "cautious", "random", traffic_count=1, traffic_from_behind=1)
+    env.reset(seed=0)
+    base = env.unwrapped
+    ego, lead, car = base.vehicle, base.lead, base.road.vehicles[2]
+    ego.speed, lead.speed = 16.0, 14.4
+    ego.position = np.array([ego.position[0], ego.y_of(0.75)])
+    lead.position = np.array([ego.position[0] + 10.3, lead.position[1]])
+    car.position = np.array([ego.position[0] - 8.0, car.position[1]])
+    car.speed = 26.0
+    for v in (ego, lead, car):
+        v.on_state_update()
+    x = base.overtake_state()
+    assert library.region("bounded_velocity").contains(x)
+    _, _, _, _, info = env.step(np.array([0.0, 0.0]))
+    g = info["guardian"]
+    assert g["conflict_steps"] == 1 and g["changed"] == "conflict"
+    assert any("responsibility for a follower not kept" in r for r in g["reasons"])
+    assert library.region(g["active_set"]).contains(base.overtake_state())
