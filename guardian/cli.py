@@ -272,7 +272,7 @@ def cmd_replay(args) -> int:
         result["rerun"] = log_highd_recording(args.rerun, folder if folder.is_dir() else folder.parent, rid, p,
                                               lambda d: self_safety_overrides(p, d.v, d.h, d.vL, d.u))
     r = result["override_rates"]
-    text = (f"{result['recordings']} recording(s): {result['data_points']} data points, {result['trajectories']} "
+    text = (f"{len(result['recordings'])} recording(s): {result['data_points']} data points, {result['trajectories']} "
             f"trajectories, {result['lane_changes']} lane changes; D = [{result['disturbance_bounds'][0]:.3f}, "
             f"{result['disturbance_bounds'][1]:.3f}] m/s^2\n"
             f"override rates on the held-out 20 %: self-safety {100 * r['self_safety']:.2f} %, "
@@ -464,8 +464,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = csub.add_parser("ngsim", help="NGSIM US-101 / I-80 trajectories (txt or CSV export) to a HighD recording")
     p.add_argument("file", type=Path)
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--main-lanes", type=int, required=True,
-                   help="lanes 1..K are the main line (I-80: 6, US-101: 5); higher lane ids are ramps")
+    p.add_argument("--main-lanes", type=int, default=None,
+                   help="lanes 1..K are the main line (I-80: 6, US-101: 5) and higher lane ids, ramps, are "
+                        "dropped (default: keep every lane)")
     p.add_argument("--recording-id", type=int, default=1)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_data_convert_ngsim)

@@ -158,8 +158,8 @@ def test_a_recording_named_without_leading_zero_reads_and_is_listed(generated, t
         p.rename(folder / p.name.replace("01_", "1_"))
     assert recording_ids(folder) == [1]
     r = replay(folder, ReplayConfig(seed=0))
-    assert r["recordings"] == 1 and r["recording_files"][0]["id"] == 1
-    assert r["recording_files"][0]["tracks"].endswith("1_tracks.csv")
+    assert len(r["recordings"]) == 1 and r["recordings"][0]["id"] == 1
+    assert r["recordings"][0]["tracks"].endswith("1_tracks.csv")
 
 
 def _write_bytes(folder, kind, fn):

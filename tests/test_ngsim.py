@@ -71,3 +71,12 @@ def test_the_csv_export_with_a_header_and_extra_columns_converts(tmp_path):
                                              txt.read_text().splitlines()) + "\n")
     report = convert_ngsim(csv, tmp_path / "out", main_lanes=6)
     assert report["ignored_columns"] == ["Location"] and report["vehicles"] == 3
+
+
+def test_the_command_as_the_issue_writes_it_keeps_every_lane(tmp_path, capsys):
+    src = _fixture(tmp_path / "trajectories-0400-0415.txt")
+    out = tmp_path / "highd"
+    assert main(["data", "convert", "ngsim", str(src), "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["main_lanes"] is None and report["lanes"] == 7 and report["ramp_rows_dropped"] == 0
+    assert read_recording(out, 1).tracks_meta.set_index("id").loc[3, "initialFrame"] == 1  # the ramp is a lane

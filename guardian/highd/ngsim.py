@@ -14,9 +14,10 @@ Choices (each reported in the conversion's JSON):
 * Units: feet × 0.3048; speeds and accelerations likewise; times stay seconds.
 * One carriageway: every vehicle drives right (``drivingDirection`` 2, the lower lanes); the upper
   markings describe two empty lanes, as in ``../shared/data/i80_sample``. laneId = 4 + Lane_ID.
-* Lanes 1..``main_lanes`` are the main line (I-80: 6, US-101: 5); rows on higher lane numbers (ramps,
-  auxiliary lanes) are dropped. A vehicle keeps its longest run of consecutive main-line frames; the
-  rows dropped and the vehicles cut are counted.
+* Lanes: by default every lane in the file is kept (ramps and auxiliary lanes become lanes of the
+  carriageway; nothing is guessed about which they are). With ``main_lanes`` = K (I-80: 6, US-101: 5)
+  lanes 1..K are the main line and rows on higher lane numbers are dropped; a vehicle keeps its longest
+  run of consecutive main-line frames; the rows dropped and the vehicles cut are counted.
 * Boxes: ``x`` = front − length (HighD's x is the rear of a right-moving box), ``width`` = length,
   ``y`` = Local_X − width / 2 (shifted so the road starts 20 m below the image top), ``height`` = width.
   Lane markings: midway between adjacent lanes' median centre lines; the outer ones half a lane out.
@@ -124,11 +125,18 @@ def _main_line_runs(df: pd.DataFrame, main_lanes: int) -> tuple[pd.DataFrame, di
     return result, report
 
 
-def convert_ngsim(path: Path, out: Path, main_lanes: int, recording_id: int = 1, location_id: int = 0) -> dict:
-    """Write ``NN_recordingMeta.csv``, ``NN_tracksMeta.csv``, ``NN_tracks.csv`` into ``out``; return a report."""
-    if main_lanes < 1:
+def convert_ngsim(path: Path, out: Path, main_lanes: int | None = None, recording_id: int = 1,
+                  location_id: int = 0) -> dict:
+    """Write ``NN_recordingMeta.csv``, ``NN_tracksMeta.csv``, ``NN_tracks.csv`` into ``out``; return a report.
+
+    ``main_lanes`` None keeps every lane of the file (``"main_lanes": null`` in the report).
+    """
+    if main_lanes is not None and main_lanes < 1:
         raise ValueError(f"main_lanes must be at least 1, got {main_lanes}")
     df, extra = read_ngsim(path)
+    requested = main_lanes
+    if main_lanes is None:
+        main_lanes = int(df["Lane_ID"].max())
     df, report = _main_line_runs(df, main_lanes)
     if df.empty:
         raise HighDFormatError(f"{path}: no row on the main line (lanes 1..{main_lanes})")
@@ -190,7 +198,8 @@ def convert_ngsim(path: Path, out: Path, main_lanes: int, recording_id: int = 1,
         table.to_csv(p, index=False, float_format="%.2f")
         files.append(str(p))
     return {"source": str(path), "out": str(out), "files": files, "vehicles": int(len(meta)),
-            "rows": int(len(tracks)), "main_lanes": main_lanes, "ignored_columns": extra, **report}
+            "rows": int(len(tracks)), "main_lanes": requested, "lanes": main_lanes, "ignored_columns": extra,
+            **report}
 
 
 def _tracks_meta(tracks: pd.DataFrame, df: pd.DataFrame) -> pd.DataFrame:

@@ -345,7 +345,7 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     n_parts = len(parts)
     del parts  # the concatenated arrays are all that is needed from here on
     result = {
-        "recordings": n_parts, "recording_files": _listing(folder, ids),
+        "recordings": _listing(folder, ids),
         "data_points": int(sum(c[0] for c in counts)),
         "trajectories": int(sum(c[1] for c in counts)), "lane_changes": int(sum(c[2] for c in counts)),
         "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
