@@ -153,7 +153,9 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         candidates = {n: models[n] for n in ("aggressive", "cautious")}
         estimator = IntentionEstimator(candidates, horizon=10)
         if not guardian:  # the guardian's own monitor counts when it is there
-            monitor = ModelMonitor(env.unwrapped.params.dt, (-6.0, 6.0), 40.0, env.unwrapped.params, candidates)
+            g = GuardianConfig()
+            monitor = ModelMonitor(env.unwrapped.params.dt, (-g.traffic_accel, g.traffic_accel), g.v_max,
+                                   env.unwrapped.params, candidates)
     totals = {"episodes": episodes, "steps": 0, "collisions": 0, "ego_at_fault_collisions": 0, "override_steps": 0,
               "refused_lane_changes": 0, "clipped_sim_steps": 0, "lane_changes": 0, "distance_mean": 0.0,
               "model_violation_steps": 0, "traffic_model_violation_steps": 0, "conflict_steps": 0,

@@ -61,7 +61,7 @@ class TrafficSupervisor:
         self.S_others = self.S if others is None else MaximalSet(self.others)
         self.overapprox = overapprox
 
-    def _speed_range(self, v: float) -> list:
+    def _speed_range(self) -> list:
         return [(0.0, self.params.v_max)]
 
     def leader(self, scene: Scene, lane: int):
@@ -75,7 +75,7 @@ class TrafficSupervisor:
     def self_safe_speeds(self, scene: Scene) -> tuple[list, str]:
         """Next ego speeds that are self-safe (7.4) against the nearest car ahead in each occupied lane."""
         p, ego = self.params, scene.ego
-        allowed = self._speed_range(ego.speed)
+        allowed = self._speed_range()
         for lane in sorted(ego.lanes):
             car = self.leader(scene, lane)
             if car is None:
@@ -96,7 +96,7 @@ class TrafficSupervisor:
         p, ego = self.others, scene.ego
         car = self.follower(scene, lane)
         if car is None:
-            return self._speed_range(ego.speed), ""
+            return self._speed_range(), ""
         progress = p.dt * ego.speed if ego_progress_min is None else ego_progress_min
         gap = (ego.front + progress) - ego.length - (car.front + p.dt * car.speed)
         v_fast = min(car.speed + p.dt * p.u_max, p.v_max)

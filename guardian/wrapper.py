@@ -352,14 +352,7 @@ class Guardian(gym.Wrapper):
             self._home = next(iter(lanes))
             self._authorized = frozenset()
         scene = self._scene(base, lanes)
-        speeds, why = self.traffic.self_safe_speeds(scene)
-        self._note(why)
-        self._accel_self = self.ego_kin.accel_for_speeds(x[0], speeds)
-        for lane in sorted(lanes - {self._home}):  # an entry under way: its follower stays safe
-            fs, why = self.traffic.follower_speeds(scene, lane)
-            speeds = intersect_intervals(speeds, fs)
-            self._note(why)
-        accel = self.ego_kin.accel_for_speeds(x[0], speeds)
+        self._accel_self, accel = self._traffic_accelerations(scene, x[0], lanes - {self._home})
         lateral, entering = [tuple(base.params.v_ey_bounds)], None
         for lane in sorted(self.ego_kin.next_lanes(x[1], u[1]) - lanes - self._authorized):
             verdict = self.traffic.entry(scene, lane) if len(lanes) == 1 else None
@@ -374,6 +367,17 @@ class Guardian(gym.Wrapper):
                 ego.keep_lane()
             self._stats["refused_lane_change"] = True
         self._finish(base, ego, x, u, applied, changed, view, accel)
+
+    def _traffic_accelerations(self, scene, v: float, entering_lanes, progress_min=None):
+        """``(self-safe, self-safe and keeping each entered lane's follower safe)`` accelerations (7.4)."""
+        speeds, why = self.traffic.self_safe_speeds(scene)
+        self._note(why)
+        self_safe = self.ego_kin.accel_for_speeds(v, speeds)
+        for lane in sorted(entering_lanes):  # an entry under way: its follower stays safe
+            fs, why = self.traffic.follower_speeds(scene, lane, ego_progress_min=progress_min)
+            speeds = intersect_intervals(speeds, fs)
+            self._note(why)
+        return self_safe, self.ego_kin.accel_for_speeds(v, speeds)
 
     def _keep_out(self, lateral, y, lane, reason):
         lo, hi = self.ego_kin.lateral_keep_out(y, lane)
@@ -456,14 +460,8 @@ class Guardian(gym.Wrapper):
                 self._home, self._authorized = next(iter(ids)), frozenset()
             crossing = {self._itha_lane(i) for i in ids - {self._home}}
         scene = self._scene(base, {self._itha_lane(i) for i in ids})
-        speeds, why = self.traffic.self_safe_speeds(scene)
-        self._note(why)
-        progress = self.ego_kin.min_progress(float(ego.speed), heading)
-        for lane in sorted(crossing):
-            fs, why = self.traffic.follower_speeds(scene, lane, ego_progress_min=progress)
-            speeds = intersect_intervals(speeds, fs)
-            self._note(why)
-        accel = self.ego_kin.accel_for_speeds(float(ego.speed), speeds)
+        _, accel = self._traffic_accelerations(scene, float(ego.speed), crossing,
+                                               self.ego_kin.min_progress(float(ego.speed), heading))
         steer = steer_prop
         if self.kind == "ContinuousAction":
             steer = self._guard_steering(base, ego, scene, ids, steer_prop, accel)

@@ -156,6 +156,10 @@ class AdmissibleQuery:
         the result is again a union of convex polygons with the same queries.
         """
         lo_u, hi_u = self.owner.u_lower, self.owner.u_upper
+        if len(boxes) == 1:
+            (lo0, hi0), (lo1, hi1) = boxes[0]
+            if lo0 <= lo_u[0] and hi0 >= hi_u[0] and lo1 <= lo_u[1] and hi1 >= hi_u[1]:
+                return self  # the box is all of U: nothing to intersect (the common case, every step)
         n = len(self.starts) - 1
         counts = np.diff(self.starts)
         piece_of_row = np.repeat(np.arange(n), counts)
