@@ -314,20 +314,31 @@ def cmd_rollout(args) -> int:
 
 
 def cmd_serve(args) -> int:
-    from guardian.service import make_server
+    from guardian.service import Limits, ServiceConfig, make_server, token_from_env
 
+    limits = Limits(max_body=args.max_body, read_timeout=args.read_timeout, keepalive_timeout=args.keepalive_timeout)
+    config = ServiceConfig(host=args.host, port=args.port, token=token_from_env(args.token),
+                           session_ttl=args.session_ttl, max_sessions=args.max_sessions, limits=limits)
+    try:
+        config.check()
+    except ValueError as exc:
+        print(f"guardian serve: {exc}", file=sys.stderr)
+        return 2
     lib = _library(args)
-    server = make_server(lib, args.host, args.port)
-    host, port = server.server_address[:2]
+    server, sock = make_server(lib, config)
+    host, port = sock.getsockname()[:2]
     url = f"http://{host}:{port}"
-    _emit({"url": url}, args.json, f"guardian service on {url} (Ctrl-C stops it)")
+    info = {"url": url, "token_required": config.token is not None, "session_ttl_s": config.session_ttl,
+            "max_sessions": config.max_sessions}
+    _emit(info, args.json, f"guardian service on {url} (SIGINT or SIGTERM stops it; sessions idle "
+                           f"{config.session_ttl:g} s expire; token {'required' if config.token else 'off'})")
     sys.stdout.flush()
     try:
-        server.serve_forever()
-    except KeyboardInterrupt:
+        server.run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn re-raises the signal after its graceful shutdown
         pass
     finally:
-        server.server_close()
+        sock.close()
     return 0
 
 
@@ -490,8 +501,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_replay)
     p = sub.add_parser("serve", help="the guardian as an HTTP JSON service (one estimator per session)")
-    p.add_argument("--host", default="127.0.0.1")
-    p.add_argument("--port", type=int, default=8765)
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to bind (default loopback; any other address needs a token)")
+    p.add_argument("--port", type=int, default=8765, help="0 picks a free port (printed)")
+    p.add_argument("--token", default=None,
+                   help="bearer token checked on every request and stream (default: $GUARDIAN_TOKEN)")
+    p.add_argument("--session-ttl", type=float, default=300.0, help="seconds an idle session lives (300)")
+    p.add_argument("--max-sessions", type=int, default=1000, help="live sessions at most (1000)")
+    p.add_argument("--max-body", type=int, default=64 * 1024, help="bytes of a body or stream message (65536)")
+    p.add_argument("--read-timeout", type=float, default=10.0,
+                   help="seconds to receive a whole request once it began (10)")
+    p.add_argument("--keepalive-timeout", type=float, default=5.0, help="seconds an idle connection stays open (5)")
     _library_options(p)
     p.set_defaults(func=cmd_serve)
     return parser

@@ -1,90 +1,314 @@
-"""The guardian service over a real loopback socket."""
-import http.client
+"""The guardian service over real loopback sockets: API, framing, limits, sessions, token, stream."""
 import json
-import threading
+import time
 
 import numpy as np
 import pytest
+from service_client import Raw, call
+from websockets.sync.client import connect as ws_connect
 
-from guardian.service import make_server
+from guardian.service import Limits, ServiceConfig, ServiceThread
+
+GOOD_STEP = {"state": [25.0, 0.0, 40.0, 20.0], "input": [0.5, 0.0]}
 
 
 @pytest.fixture(scope="module")
-def server(library):
-    srv = make_server(library, "127.0.0.1", 0)
-    thread = threading.Thread(target=srv.serve_forever, daemon=True)
-    thread.start()
-    yield srv.server_address
-    srv.shutdown()
-    srv.server_close()
+def service(library):
+    limits = Limits(read_timeout=1.0, keepalive_timeout=1.0)
+    with ServiceThread(library, ServiceConfig(port=0, limits=limits)) as svc:
+        yield svc
 
 
-def call(addr, method, path, body=None, raw=None):
-    conn = http.client.HTTPConnection(*addr, timeout=10)
-    data = raw if raw is not None else (json.dumps(body).encode() if body is not None else None)
-    conn.request(method, path, body=data, headers={"Content-Type": "application/json"})
-    resp = conn.getresponse()
-    payload = json.loads(resp.read() or b"{}")
-    conn.close()
-    return resp.status, payload
+def new_session(address, settings=None) -> str:
+    status, _, body = call(address, "POST", "/sessions", settings or {})
+    assert status == 201, body
+    return body["session"]
 
 
-def test_session_lifecycle(server, library):
-    status, s = call(server, "POST", "/sessions", {})
-    assert status == 201 and s["active_set"] == "bounded_velocity"
-    sid = s["session"]
-    x = np.array([25.0, 0.0, 40.0, 20.0])
+def live(svc) -> int:
+    return call(svc.address, "GET", "/health")[2]["sessions"]
+
+
+def test_session_lifecycle(service, library):
+    sid = new_session(service.address)
+    x = np.array(GOOD_STEP["state"])
     model = library.models["cautious"]
+    raw = Raw(service.address)  # one keep-alive connection for the whole loop
     for _ in range(40):
-        status, rec = call(server, "POST", f"/sessions/{sid}/step", {"state": x.tolist(), "input": [0.5, 0.0]})
+        status, _, rec = raw.request("POST", f"/sessions/{sid}/step", {"state": x.tolist(), "input": [0.5, 0.0]})
         assert status == 200
         assert -3 <= rec["applied"][0] <= 3 and -1.8 <= rec["applied"][1] <= 1.8
+        assert rec["failsafe"] is (rec["changed"] == "failsafe")
         x = model.system.step(x, rec["applied"], np.zeros(4))
-    status, summary = call(server, "GET", f"/sessions/{sid}")
+    status, _, summary = raw.request("GET", f"/sessions/{sid}")
     assert status == 200 and summary["steps"] == 40 and summary["valid_intentions"] == ["cautious"]
-    assert summary["active_set"] == "cautious"
-    assert call(server, "DELETE", f"/sessions/{sid}")[0] == 200
-    assert call(server, "GET", f"/sessions/{sid}")[0] == 404
+    assert summary["active_set"] == "cautious" and summary["idle_s"] >= 0
+    listed = {s["session"]: s for s in raw.request("GET", "/sessions")[2]["sessions"]}
+    assert listed[sid]["steps"] == 40
+    assert raw.request("DELETE", f"/sessions/{sid}")[0] == 200
+    status, _, err = raw.request("GET", f"/sessions/{sid}")
+    assert status == 404 and "unknown session" in err["error"]
+    raw.close()
 
 
-@pytest.mark.parametrize("body,raw,fragment", [
-    (None, b"{not json", "malformed JSON"),
-    (None, b'{"state": [NaN, 0, 40, 20], "input": [0, 0]}', "NaN"),
-    ({"state": [25, 0, 40], "input": [0, 0]}, None, "4 numbers"),
-    ({"state": [25, 0, 40, 20], "input": [0, "x"]}, None, "2 numbers"),
-    ({"state": [25, 0, 40, 20]}, None, "missing field 'input'"),
-    ({"state": [25, 0, 40, 20], "input": [0, 0], "extra": 1}, None, "unknown fields"),
-    ({"state": [25, 0, 40, 99.0], "input": [0, 0]}, None, "no piece"),
-    (None, b"[1, 2]", "object"),
+def test_session_settings_are_honoured_and_checked(service):
+    sid = new_session(service.address, {"use_intention": False, "horizon": 3, "priority": ["steering", "throttle"]})
+    _, _, s = call(service.address, "GET", f"/sessions/{sid}")
+    assert s["use_intention"] is False and s["horizon"] == 3
+    for bad, fragment in [({"horizon": 0}, "horizon"), ({"horizon": True}, "horizon"),
+                          ({"use_intention": 1}, "use_intention"), ({"priority": ["throttle", "throttle"]}, "priority"),
+                          ({"colour": "red"}, "colour")]:
+        status, _, err = call(service.address, "POST", "/sessions", bad)
+        assert status == 422 and fragment in err["error"], (bad, err)
+
+
+@pytest.mark.parametrize("raw,status,fragment", [
+    (b"{not json", 400, "malformed JSON"),
+    (b'{"state": [NaN, 0, 40, 20], "input": [0, 0]}', 400, "NaN"),
+    (b'{"state": [Infinity, 0, 40, 20], "input": [0, 0]}', 400, "Infinity"),
+    (b'{"state": [25, 0, 40], "input": [0, 0]}', 422, "state"),
+    (b'{"state": [25, 0, 40, 20], "input": [0, "x"]}', 422, "input.1"),
+    (b'{"state": [25, 0, 40, 20], "input": [0, true]}', 422, "input.1"),
+    (b'{"state": [25, 0, 40, 20]}', 422, "input"),
+    (b'{"state": [25, 0, 40, 20], "input": [0, 0], "extra": 1}', 422, "extra"),
+    (b'{"state": [25, 0, 40, 99.0], "input": [0, 0]}', 422, "model domain"),
+    (b'{"state": [-500, 0, 40, 20], "input": [0, 0]}', 422, "model domain"),
+    (b"[1, 2]", 422, "object"),
+    (b'{"state": [1' + b"0" * 400 + b', 0, 40, 20], "input": [0, 0]}', 400, "number"),
+    (b"[" * 20000 + b"]" * 20000, 400, "nested"),
+    (b"\xff\xfe{}", 400, "malformed JSON"),
 ])
-def test_bad_requests_get_a_400_and_leave_the_session_alone(server, body, raw, fragment):
-    _, s = call(server, "POST", "/sessions", {})
-    sid = s["session"]
-    good = {"state": [25.0, 0.0, 40.0, 20.0], "input": [0.0, 0.0]}
-    call(server, "POST", f"/sessions/{sid}/step", good)
-    before = call(server, "GET", f"/sessions/{sid}")[1]
-    status, err = call(server, "POST", f"/sessions/{sid}/step", body, raw)
-    assert status == 400 and fragment in err["error"]
-    after = call(server, "GET", f"/sessions/{sid}")[1]
+def test_bad_steps_get_a_4xx_and_leave_the_session_alone(service, raw, status, fragment):
+    sid = new_session(service.address)
+    conn = Raw(service.address)
+    assert conn.request("POST", f"/sessions/{sid}/step", GOOD_STEP)[0] == 200
+    before = conn.request("GET", f"/sessions/{sid}")[2]
+    got, headers, err = conn.request("POST", f"/sessions/{sid}/step", raw)
+    assert got == status and fragment in err["error"], err
+    assert headers["content-type"] == "application/json"
+    after = conn.request("GET", f"/sessions/{sid}")[2]  # same connection: a 4xx keeps it usable
+    before.pop("idle_s"), after.pop("idle_s")
     assert after == before
+    conn.close()
 
 
-def test_one_sessions_bad_request_does_not_disturb_another(server, library):
-    _, a = call(server, "POST", "/sessions", {})
-    _, b = call(server, "POST", "/sessions", {"use_intention": False})
-    x = [25.0, 0.0, 40.0, 20.0]
-    call(server, "POST", f"/sessions/{a['session']}/step", {"state": x, "input": [0, 0]})
-    ref = call(server, "GET", f"/sessions/{a['session']}")[1]
-    assert call(server, "POST", f"/sessions/{b['session']}/step", raw=b"garbage")[0] == 400
-    assert call(server, "GET", f"/sessions/{a['session']}")[1] == ref
-    assert call(server, "GET", f"/sessions/{b['session']}")[1]["active_set"] == "bounded_velocity"
+def test_one_sessions_bad_request_does_not_disturb_another(service):
+    a, b = new_session(service.address), new_session(service.address, {"use_intention": False})
+    call(service.address, "POST", f"/sessions/{a}/step", GOOD_STEP)
+    ref = call(service.address, "GET", f"/sessions/{a}")[2]
+    assert call(service.address, "POST", f"/sessions/{b}/step", b"garbage")[0] == 400
+    now = call(service.address, "GET", f"/sessions/{a}")[2]
+    ref.pop("idle_s"), now.pop("idle_s")
+    assert now == ref
 
 
-def test_unknown_routes_methods_and_oversized_bodies(server):
-    assert call(server, "POST", "/sessions/nope/step", {"state": [25, 0, 40, 20], "input": [0, 0]})[0] == 404
-    assert call(server, "GET", "/nowhere")[0] == 404
-    assert call(server, "PUT", "/sessions")[0] == 405
-    assert call(server, "POST", "/sessions", raw=b"{" + b" " * 70000 + b"}")[0] == 413
-    status, err = call(server, "POST", "/sessions", {"horizon": 0})
-    assert status == 400 and "horizon" in err["error"]
-    assert call(server, "GET", "/health")[1]["status"] == "ok"
+def test_a_state_in_the_domain_but_outside_the_set_gets_the_failsafe_flagged(service):
+    sid = new_session(service.address)
+    status, _, rec = call(service.address, "POST", f"/sessions/{sid}/step",
+                          {"state": [10.0, 0.0, 11.0, 0.0], "input": [3.0, 0.0]})
+    assert status == 200 and rec["in_invariant_set"] is False
+    assert rec["failsafe"] is (rec["changed"] == "failsafe")
+    assert -3 <= rec["applied"][0] <= 3 and -1.8 <= rec["applied"][1] <= 1.8
+
+
+def test_every_error_is_json_and_methods_are_checked(service):
+    for method, path, status in [("PATCH", "/sessions", 405), ("OPTIONS", "/health", 405), ("PUT", "/health", 405),
+                                 ("GET", "/nowhere", 404), ("DELETE", "/sessions/nope", 404)]:
+        got, headers, body = call(service.address, method, path)
+        assert got == status and headers["content-type"] == "application/json" and "error" in body
+    got, headers, body = call(service.address, "HEAD", "/health")
+    assert got == 200 and body is None
+    assert call(service.address, "GET", "/openapi.json")[2]["paths"]["/sessions/{sid}/step"]["post"]["requestBody"]
+
+
+# ---- framing: what the issue's fuzzing review did, byte for byte --------------------------------
+
+def test_chunked_bodies_are_read_and_nothing_inside_them_runs_as_a_request(service):
+    victim = new_session(service.address)
+    body = json.dumps({"use_intention": False, "horizon": 3}).encode()
+    smuggled = f"DELETE /sessions/{victim} HTTP/1.1\r\nHost: x\r\nContent-Length: 0\r\n\r\n".encode()
+    chunks = b"".join(b"%x\r\n%s\r\n" % (len(c), c) for c in (body[:7], body[7:]))
+    raw = Raw(service.address).send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
+                                    + chunks + b"0\r\n\r\n")
+    status, _, created = raw.response()
+    assert status == 201 and created["use_intention"] is False
+    assert call(service.address, "GET", f"/sessions/{created['session']}")[2]["horizon"] == 3
+    # a chunked body holding a request is a body (malformed JSON), not a request
+    raw.send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
+             + b"%x\r\n%s\r\n0\r\n\r\n" % (len(smuggled), smuggled))
+    assert raw.response()[0] == 400
+    assert call(service.address, "GET", f"/sessions/{victim}")[0] == 200
+    raw.close()
+
+
+@pytest.mark.parametrize("partial", [
+    b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Le",
+    b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: 30\r\n\r\n",
+    b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: 30\r\n\r\n{\"horizon\": 3",
+    b"POST /sessions HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n5\r\n{\"hor",
+])
+def test_a_request_cut_short_executes_nothing(service, partial):
+    before = live(service)
+    for _ in range(20):
+        raw = Raw(service.address).send(partial).half_close()
+        assert raw.response() is None  # a clean close, no answer to a request that never arrived
+        raw.close()
+    assert live(service) == before
+
+
+@pytest.mark.parametrize("head,status,fragment", [
+    (b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: -1\r\n\r\n", 400, "invalid HTTP request"),
+    (b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: -5\r\n\r\n", 400, "invalid HTTP request"),
+    (b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: 1x\r\n\r\n", 400, "invalid HTTP request"),
+    (b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: 209715200\r\n\r\n", 413, "exceeds"),
+    (b"POST /sessions HTTP/1.1\r\nHost: x\r\n\r\n", 411, "Content-Length"),
+    (b"GET /" + b"a" * 70_000 + b" HTTP/1.1\r\nHost: x\r\n\r\n", 414, "bytes"),
+    (b"GET /" + b"a" * 9_000 + b" HTTP/1.1\r\nHost: x\r\n\r\n", 414, "request target"),
+    (b"GET /health HTTP/1.1\r\nHost: x\r\n" + b"".join(b"X-%d: y\r\n" % i for i in range(200)) + b"\r\n",
+     431, "header fields"),
+    (b"GET /health HTTP/1.1\r\nHost: x\r\nX-Big: " + b"y" * 20_000 + b"\r\n\r\n", 431, "longer than"),
+    (b"GARBAGE\r\n\r\n", 400, "invalid HTTP request"),
+])
+def test_framing_errors_get_json_and_connection_close(service, head, status, fragment):
+    raw = Raw(service.address).send(head)
+    got, headers, body = raw.response()
+    assert got == status and fragment in body["error"], body
+    assert headers["content-type"] == "application/json" and headers["connection"] == "close"
+    assert raw.closed()
+    raw.close()
+
+
+def test_a_200_mb_body_is_refused_before_it_is_read(service):
+    raw = Raw(service.address).send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: -1\r\n\r\n")
+    assert raw.response()[0] == 400
+    raw.close()
+    raw = Raw(service.address).send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n")
+    sent = 0
+    with pytest.raises((BrokenPipeError, ConnectionResetError)):
+        while sent < 200 * 2 ** 20:
+            raw.send(b"100000\r\n" + b" " * 0x100000 + b"\r\n")
+            sent += 0x100000
+    assert sent <= 8 * 2 ** 20  # refused after the first 64 KiB, not after 200 MB
+    raw.close()
+
+
+def test_pipelined_requests_are_answered_in_order(service):
+    sid = new_session(service.address)
+    body = json.dumps(GOOD_STEP).encode()
+    one = f"POST /sessions/{sid}/step HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body)}\r\n\r\n".encode() + body
+    raw = Raw(service.address).send(one * 5 + f"GET /sessions/{sid} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
+    ts = [raw.response()[2]["t"] for _ in range(5)]
+    assert ts == [0, 1, 2, 3, 4] and raw.response()[2]["steps"] == 5
+    raw.close()
+
+
+def test_slow_and_idle_clients_are_timed_out(service):
+    half = Raw(service.address).send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-")
+    slow_body = Raw(service.address).send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Length: 10\r\n\r\n{")
+    idle = Raw(service.address)
+    t0 = time.monotonic()
+    status, headers, body = half.response()
+    assert status == 408 and "head" in body["error"] and headers["connection"] == "close"
+    status, headers, body = slow_body.response()
+    assert status == 408 and "body" in body["error"] and headers["connection"] == "close"
+    assert idle.closed(timeout=5.0)
+    assert time.monotonic() - t0 < 4.0
+    for r in (half, slow_body, idle):
+        r.close()
+
+
+# ---- sessions expire ------------------------------------------------------------------------------
+
+def test_abandoned_sessions_expire_and_new_ones_are_served(library):
+    config = ServiceConfig(port=0, session_ttl=4.0, max_sessions=1000)
+    with ServiceThread(library, config) as svc:
+        raw = Raw(svc.address)
+        first = [raw.request("POST", "/sessions", {})[2]["session"] for _ in range(1000)]
+        status, _, err = raw.request("POST", "/sessions", {})
+        assert status == 503 and "session limit 1000" in err["error"]
+        time.sleep(4.3)
+        status, _, created = raw.request("POST", "/sessions", {})
+        assert status == 201
+        status, _, err = raw.request("GET", f"/sessions/{first[0]}")
+        assert status == 410 and err["expired"] is True and "expired" in err["error"]
+        assert raw.request("POST", f"/sessions/{first[1]}/step", GOOD_STEP)[0] == 410
+        health = raw.request("GET", "/health")[2]
+        assert health["sessions"] == 1 and health["expired"] == 1000
+        assert health["max_sessions"] == 1000 and health["session_ttl_s"] == 4.0
+        # a session in use does not expire
+        for _ in range(6):
+            assert raw.request("POST", f"/sessions/{created['session']}/step", GOOD_STEP)[0] == 200
+            time.sleep(1.0)
+        assert raw.request("GET", f"/sessions/{created['session']}")[0] == 200
+        raw.close()
+
+
+# ---- the token -----------------------------------------------------------------------------------
+
+def test_a_public_address_without_a_token_is_refused():
+    with pytest.raises(ValueError, match="without a token"):
+        ServiceConfig(host="0.0.0.0").check()
+    with pytest.raises(ValueError, match="at least 16"):
+        ServiceConfig(host="0.0.0.0", token="short").check()
+    ServiceConfig(host="0.0.0.0", token="a-long-enough-secret").check()
+    ServiceConfig(host="::1").check()
+
+
+def test_the_token_is_checked_on_every_request_and_on_the_stream(library):
+    token = "correct-horse-battery-staple"
+    with ServiceThread(library, ServiceConfig(port=0, token=token)) as svc:
+        for headers in ({}, {"authorization": "Bearer wrong-token-of-some-length"}, {"authorization": token}):
+            for method, path in [("GET", "/health"), ("POST", "/sessions"), ("GET", "/docs")]:
+                status, h, body = call(svc.address, method, path, {} if method == "POST" else None, headers)
+                assert status == 401 and "token" in body["error"] and h["www-authenticate"] == "Bearer"
+        good = {"authorization": f"Bearer {token}"}
+        status, _, s = call(svc.address, "POST", "/sessions", {}, good)
+        assert status == 201
+        with pytest.raises(Exception, match="401"):
+            ws_connect(f"ws://{svc.address[0]}:{svc.address[1]}/sessions/{s['session']}/stream").close()
+        with ws_connect(f"ws://{svc.address[0]}:{svc.address[1]}/sessions/{s['session']}/stream",
+                        additional_headers=good) as ws:
+            ws.send(json.dumps(GOOD_STEP))
+            assert json.loads(ws.recv())["t"] == 0
+
+
+# ---- the stream ----------------------------------------------------------------------------------
+
+def test_the_stream_answers_each_message_in_order_like_http(service, library):
+    over_http, over_ws = new_session(service.address), new_session(service.address)
+    rng = np.random.default_rng(3)
+    steps = [{"state": [float(rng.uniform(20, 30)), float(rng.uniform(-0.5, 2)), float(rng.uniform(-40, 60)),
+                        float(rng.uniform(15, 30))], "input": [float(rng.uniform(-3, 3)), float(rng.uniform(-1.8, 1.8))]}
+             for _ in range(30)]
+    conn = Raw(service.address)
+    expected = [conn.request("POST", f"/sessions/{over_http}/step", s)[2] for s in steps]
+    with ws_connect(f"ws://{service.address[0]}:{service.address[1]}/sessions/{over_ws}/stream") as ws:
+        for s in steps[:10]:  # pipelined: ten messages, then ten replies
+            ws.send(json.dumps(s))
+        got = [json.loads(ws.recv()) for _ in range(10)]
+        ws.send("not json")
+        assert json.loads(ws.recv())["status"] == 400
+        ws.send(json.dumps({"state": [1, 2], "input": [0, 0]}))
+        assert json.loads(ws.recv())["status"] == 422
+        for s in steps[10:]:
+            ws.send(json.dumps(s))
+            got.append(json.loads(ws.recv()))
+    assert got == expected
+    assert call(service.address, "GET", f"/sessions/{over_ws}")[2]["steps"] == 30
+    conn.close()
+
+
+def test_the_stream_of_an_unknown_or_deleted_session_says_so_and_closes(service):
+    with ws_connect(f"ws://{service.address[0]}:{service.address[1]}/sessions/nope/stream") as ws:
+        assert json.loads(ws.recv())["status"] == 404
+        with pytest.raises(Exception):
+            ws.recv()
+    assert ws.close_code == 4404
+    sid = new_session(service.address)
+    with ws_connect(f"ws://{service.address[0]}:{service.address[1]}/sessions/{sid}/stream") as ws:
+        ws.send(json.dumps(GOOD_STEP))
+        assert json.loads(ws.recv())["t"] == 0
+        assert call(service.address, "DELETE", f"/sessions/{sid}")[0] == 200
+        ws.send(json.dumps(GOOD_STEP))
+        assert json.loads(ws.recv())["status"] == 404
+    assert ws.close_code == 4404
