@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 import time
 from pathlib import Path
@@ -333,9 +334,11 @@ def cmd_serve(args) -> int:
     _emit(info, args.json, f"guardian service on {url} (SIGINT or SIGTERM stops it; sessions idle "
                            f"{config.session_ttl:g} s expire; token {'required' if config.token else 'off'})")
     sys.stdout.flush()
+    # uvicorn answers the requests in flight, restores these handlers and re-raises the signal
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
     try:
         server.run(sockets=[sock])
-    except KeyboardInterrupt:  # uvicorn re-raises the signal after its graceful shutdown
+    except KeyboardInterrupt:
         pass
     finally:
         sock.close()

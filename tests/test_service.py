@@ -312,3 +312,50 @@ def test_the_stream_of_an_unknown_or_deleted_session_says_so_and_closes(service)
         ws.send(json.dumps(GOOD_STEP))
         assert json.loads(ws.recv())["status"] == 404
     assert ws.close_code == 4404
+
+
+# ---- the process: refusal to start, graceful shutdown ---------------------------------------------
+
+def _serve(cache_dir, *args, env=None):
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.Popen([sys.executable, "-m", "guardian.cli", "serve", "--cache-dir", str(cache_dir), "--json",
+                             *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, **(env or {})})
+
+
+def test_serve_refuses_a_public_address_without_a_token(cache_dir):
+    proc = _serve(cache_dir, "--host", "0.0.0.0", "--port", "0", env={"GUARDIAN_TOKEN": ""})
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2 and "without a token" in err
+
+
+def test_sigterm_answers_the_request_in_flight_then_exits(library, cache_dir):
+    import signal
+
+    proc = _serve(cache_dir, "--port", "0")
+    try:
+        lines = []
+        while not lines or lines[-1] != "}":
+            lines.append(proc.stdout.readline().rstrip("\n"))
+        info = json.loads("\n".join(lines))
+        host, port = info["url"].removeprefix("http://").split(":")
+        address = (host, int(port))
+        sid = call(address, "POST", "/sessions", {})[2]["session"]
+        body = json.dumps(GOOD_STEP).encode()
+        raw = Raw(address).send(f"POST /sessions/{sid}/step HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body)}\r\n\r\n"
+                                .encode() + body[:10])
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        time.sleep(0.5)
+        raw.send(body[10:])  # the rest of the request in flight arrives after the signal
+        status, headers, record = raw.response()
+        assert status == 200 and record["t"] == 0 and headers["connection"] == "close"
+        assert proc.wait(timeout=20) == 0
+        with pytest.raises(OSError):
+            call(address, "GET", "/health")
+    finally:
+        proc.kill()
+        proc.communicate()

@@ -231,6 +231,7 @@ class Gate:
         self.app = app
         self.limits = limits
         self.token = token
+        self.stopping = lambda: False  # the server sets this: answers during shutdown say Connection: close
 
     @property
     def store(self) -> SessionStore:
@@ -288,7 +289,10 @@ class Gate:
 
         async def tracking_send(message):
             nonlocal started
-            started = started or message["type"] == "http.response.start"
+            if message["type"] == "http.response.start":
+                started = True
+                if self.stopping():
+                    message = {**message, "headers": [*message.get("headers", []), (b"connection", b"close")]}
             await send(message)
 
         try:

@@ -86,6 +86,7 @@ def make_server(library, config: ServiceConfig = ServiceConfig()) -> tuple[uvico
     sock = bind(config.host, config.port, config.backlog)
     server = uvicorn.Server(uv)
     server.store = store
+    app.stopping = lambda: server.should_exit
     return server, sock
 
 
