@@ -15,7 +15,7 @@ import numpy as np
 from envs.drivers import make_driver
 from envs.overtake import OvertakeEnv
 from guardian.supervisor import IntentionAwareGuardian
-from rcis.library import build_library
+from intention.library import build_library
 
 
 def guardian_step_times(lib, use_intention: bool, episodes: int = 20) -> np.ndarray:

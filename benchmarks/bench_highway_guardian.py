@@ -22,7 +22,7 @@ import envs  # noqa: F401
 from envs.agents import make_agent
 from guardian.rollout import OVERTAKE_ENV, highway_env_config
 from guardian.wrapper import Guardian
-from rcis.library import build_library
+from intention.library import build_library
 
 CASES = [(OVERTAKE_ENV, "continuous"), (OVERTAKE_ENV, "meta"), ("highway-v0", "meta"), ("highway-v0", "continuous")]
 

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from rcis.library import SET_NAMES, build_library
+from intention.library import SET_NAMES, build_library
 
 
 def per_call(fn, n):

@@ -51,7 +51,7 @@ def start_before(tmp: Path) -> tuple[subprocess.Popen, tuple] | None:
         return None
     (tmp / "old_service.py").write_text(source)
     runner = ("import sys; sys.path.insert(0, %r)\nfrom old_service import make_server\n"
-              "from rcis.library import build_library\n"
+              "from intention.library import build_library\n"
               "srv = make_server(build_library(quiet=True), '127.0.0.1', 0)\n"
               "print(srv.server_address[1], flush=True)\nsrv.serve_forever()\n") % str(tmp)
     proc = subprocess.Popen([sys.executable, "-c", runner], stdout=subprocess.PIPE, text=True, cwd=ROOT)

@@ -15,7 +15,7 @@ def _emit(result: dict, as_json: bool, text: str) -> None:
 
 def _library(args):
     from intention.params import OvertakeParams
-    from rcis.library import LibrarySettings, build_library, replace_settings
+    from intention.library import LibrarySettings, build_library, replace_settings
 
     settings = replace_settings(LibrarySettings(), intention_max_iterations=args.iterations)
     params = OvertakeParams()
@@ -41,7 +41,7 @@ def cmd_rcis_build(args) -> int:
 
 def cmd_rcis_certify(args) -> int:
     from rcis.certify import falsify
-    from rcis.library import SET_NAMES
+    from intention.library import SET_NAMES
     from rcis.polyhedron import Polyhedron
 
     lib = _library(args)
@@ -62,7 +62,7 @@ def cmd_rcis_certify(args) -> int:
 
 
 def cmd_rcis_export(args) -> int:
-    from rcis.library import SET_NAMES, export_set
+    from intention.library import SET_NAMES, export_set
 
     if args.name not in SET_NAMES:
         print(f"guardian rcis export: unknown set {args.name!r}; choose from {', '.join(SET_NAMES)}",
@@ -76,7 +76,7 @@ def cmd_rcis_export(args) -> int:
 
 
 def cmd_rcis_plot(args) -> int:
-    from rcis.plot import plot_admissible, plot_slices
+    from intention.plots import plot_admissible, plot_slices
 
     lib = _library(args)
     out = Path(args.out)

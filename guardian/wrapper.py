@@ -197,7 +197,7 @@ class Guardian(gym.Wrapper):
     ----------
     env : gymnasium.Env
         The environment (possibly wrapped); its ``unwrapped`` is a highway-env ``AbstractEnv``.
-    library : rcis.library.OvertakeLibrary, optional
+    library : intention.library.OvertakeLibrary, optional
         The overtake RCIS library; required on ``HighwayOvertake-v0`` (the lead part), unused elsewhere.
     config : GuardianConfig
     """
@@ -224,7 +224,7 @@ class Guardian(gym.Wrapper):
     # ---- construction ----------------------------------------------------------------------------
     def _init_overtake(self, base, library) -> None:
         if library is None:
-            raise ConfigError("Guardian: HighwayOvertake needs the overtake RCIS library (rcis.library.build_library)")
+            raise ConfigError("Guardian: HighwayOvertake needs the overtake RCIS library (intention.library.build_library)")
         p = base.params
         if library.params != p:
             raise ConfigError("Guardian: the library was computed for other OvertakeParams than the env's "

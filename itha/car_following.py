@@ -35,11 +35,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 
-from rcis.cache import code_fingerprint, default_cache_dir, entry_path, try_load, try_save
+from rcis.cache import RegionCache, code_fingerprint
 from rcis.invariant import outside_in
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PWAPiece, PWASystem
@@ -318,15 +317,15 @@ def compute_polyhedral(p: CarFollowingParams, max_iterations: int = 400, progres
 def load_or_build(p: CarFollowingParams, cache_dir=None, rebuild: bool = False, progress=None,
                   log=None) -> PolyhedralSet:
     """The polyhedral set from the disk cache, or computed and stored (keyed by every parameter)."""
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint()}
-    path = entry_path(cache_dir, "car-following", payload)
-    hit = None if rebuild else try_load(path, payload, **({"log": log} if log else {}))
-    if hit is not None:
-        return PolyhedralSet(p, *hit)
-    S = compute_polyhedral(p, progress=progress)
-    try_save(path, S.region, payload, S.info, **({"log": log} if log else {}))
-    return S
+    cache = RegionCache(cache_dir, use_cache=not rebuild, **({"log": log} if log else {}))
+    payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint(__file__)}
+
+    def compute():
+        S = compute_polyhedral(p, progress=progress)
+        return S.region, S.info
+
+    region, info, _ = cache.get("car-following", payload, compute)
+    return PolyhedralSet(p, region, info)
 
 
 def make_set(p: CarFollowingParams, kind: str = "closed-form", **kw):

@@ -27,9 +27,7 @@ import numpy as np
 from rcis.polyhedron import Polyhedron
 from rcis.region import Region
 
-_FINGERPRINT_FILES = ("rcis/lp.py", "rcis/polyhedron.py", "rcis/region.py", "rcis/pwa.py",
-                      "rcis/invariant.py", "intention/models.py",
-                      "itha/car_following.py")
+_ENGINE_FILES = ("lp.py", "polyhedron.py", "region.py", "pwa.py", "invariant.py")
 
 
 class StaleCacheError(RuntimeError):
@@ -40,12 +38,20 @@ def default_cache_dir() -> Path:
     return Path(os.environ.get("GUARDIAN_CACHE_DIR", Path.home() / ".cache" / "guardian"))
 
 
-def code_fingerprint() -> str:
-    root = Path(__file__).resolve().parent.parent
+def code_fingerprint(*model_files) -> str:
+    """Hash of the engine's set-computing source and of the caller's model files.
+
+    Parameters
+    ----------
+    *model_files : path-like
+        Source files that define the system whose sets are cached (e.g. the module building the
+        PWA model). Editing any of them, or the engine, gives a new fingerprint.
+    """
+    here = Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for rel in _FINGERPRINT_FILES:
-        h.update(rel.encode())
-        h.update((root / rel).read_bytes())
+    for path in [here / f for f in _ENGINE_FILES] + [Path(f).resolve() for f in model_files]:
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
@@ -148,3 +154,35 @@ def _first_difference(stored, expected, prefix="") -> str:
             if stored.get(k) != expected.get(k):
                 return _first_difference(stored.get(k), expected.get(k), f"{prefix}{k}.")
     return f"{prefix.rstrip('.') or 'payload'} = {stored!r}, expected {expected!r}"
+
+
+class RegionCache:
+    """Cache-or-compute for regions: ``cache.get(name, payload, compute)``.
+
+    ``compute()`` returns ``(region, info)``; ``info`` must be JSON. ``use_cache=False`` recomputes and
+    replaces the entry. ``load``/``store`` are the two halves, for callers that compute in parallel.
+    """
+
+    def __init__(self, cache_dir: Path | None = None, use_cache: bool = True, log=_warn):
+        self.dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.use_cache = use_cache
+        self.log = log
+
+    def path(self, name: str, payload: dict) -> Path:
+        return entry_path(self.dir, name, payload)
+
+    def load(self, name: str, payload: dict):
+        """``(region, info)`` from a valid entry, else None."""
+        return try_load(self.path(name, payload), payload, log=self.log) if self.use_cache else None
+
+    def store(self, name: str, payload: dict, region: Region, info: dict) -> bool:
+        return try_save(self.path(name, payload), region, payload, info, log=self.log)
+
+    def get(self, name: str, payload: dict, compute) -> tuple[Region, dict, bool]:
+        """``(region, info, from_cache)``."""
+        hit = self.load(name, payload)
+        if hit is not None:
+            return hit[0], hit[1], True
+        region, info = compute()
+        self.store(name, payload, region, info)
+        return region, info, False

@@ -9,6 +9,6 @@ def cache_dir(tmp_path_factory):
 @pytest.fixture(scope="session")
 def library(cache_dir):
     """The full overtake library, built once per test session into a private cache."""
-    from rcis.library import build_library
+    from intention.library import build_library
 
     return build_library(cache_dir=cache_dir, quiet=True, workers=2)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rcis.cache import StaleCacheError, entry_path, load_region, save_region, try_load, try_save
-from rcis.library import LibrarySettings, build_library, replace_settings
+from intention.library import LibrarySettings, build_library, replace_settings
 from rcis.polyhedron import Polyhedron
 from rcis.region import Region
 

@@ -87,11 +87,12 @@ def test_params_are_validated():
 
 
 def test_cache_is_keyed_by_parameters(tmp_path, poly):
-    from rcis.cache import StaleCacheError, load_region
+    from itha import car_following
+    from rcis.cache import StaleCacheError, code_fingerprint, load_region
     a = load_or_build(P, cache_dir=tmp_path)
     files = list(tmp_path.glob("car-following-*.npz"))
     assert len(files) == 1 and len(a.region) == len(poly.region)
     other = CarFollowingParams(h_min=6.0)
     with pytest.raises(StaleCacheError, match="h_min"):
         load_region(files[0], {"set": "car-following", "params": __import__("dataclasses").asdict(other),
-                               "tighten": 1e-6, "code": __import__("rcis.cache").cache.code_fingerprint()})
+                               "tighten": 1e-6, "code": code_fingerprint(car_following.__file__)})

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from rcis.certify import falsify
-from rcis.library import SET_NAMES, build_library, export_set
+from intention.library import SET_NAMES, build_library, export_set
 from rcis.polyhedron import Polyhedron
 from rcis.region import Region
 

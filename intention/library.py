@@ -15,7 +15,7 @@ from pathlib import Path
 from intention.models import IntentionModel, intention_models, left_lane, safe_set
 from intention.params import OvertakeParams
 from rcis.admissible import AdmissibleInputs
-from rcis.cache import code_fingerprint, default_cache_dir, entry_path, payload_key, try_load, try_save
+from rcis.cache import RegionCache, code_fingerprint, payload_key
 from rcis.invariant import COVER_BUDGET, inside_out, stderr_progress
 from rcis.region import Region
 
@@ -83,7 +83,13 @@ class OvertakeLibrary:
 def _payload(name: str, params: OvertakeParams, settings: LibrarySettings, seed_key: str) -> dict:
     return {"set": name, "params": params.as_dict(), "max_iterations": settings.max_iterations(name),
             "merge": settings.merge, "cover_budget": settings.cover_budget, "seed": SEED_OF[name],
-            "seed_key": seed_key, "code": code_fingerprint()}
+            "seed_key": seed_key, "code": code_fingerprint(intention_models_file())}
+
+
+def intention_models_file() -> str:
+    import intention.models
+
+    return intention.models.__file__
 
 
 def _compute(name: str, params: OvertakeParams, settings: LibrarySettings, seed: Region, quiet: bool):
@@ -99,32 +105,24 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
                   cache_dir: Path | None = None, use_cache: bool = True, workers: int = 2,
                   quiet: bool = False) -> OvertakeLibrary:
     """Load every set from the cache or compute it (intentions in parallel)."""
-    cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    cache = RegionCache(cache_dir, use_cache=use_cache)
     models = intention_models(params)
     sets: dict[str, InvariantSet] = {}
 
     def remember(name, region, info, payload, from_cache):
-        if not from_cache:  # --rebuild (use_cache False) replaces whatever is there
-            try_save(entry_path(cache_dir, name, payload), region, payload, info)
         sets[name] = InvariantSet(name, region, info["iterations"], info["converged"], info["seconds"],
                                   from_cache, payload_key(payload), payload)
 
-    def cached(name, payload):
-        return try_load(entry_path(cache_dir, name, payload), payload) if use_cache else None
-
     bnd_payload = _payload("bounded_velocity", params, settings, "C_left")
-    hit = cached("bounded_velocity", bnd_payload)
-    if hit is None:
-        region, info = _compute("bounded_velocity", params, settings, left_lane(params), quiet)
-        remember("bounded_velocity", region, info, bnd_payload, False)
-    else:
-        remember("bounded_velocity", hit[0], hit[1], bnd_payload, True)
+    region, info, from_cache = cache.get(
+        "bounded_velocity", bnd_payload, lambda: _compute("bounded_velocity", params, settings, left_lane(params), quiet))
+    remember("bounded_velocity", region, info, bnd_payload, from_cache)
     bnd = sets["bounded_velocity"]
 
     todo = []
     for name in ("aggressive", "cautious"):
         payload = _payload(name, params, settings, bnd.key)
-        hit = cached(name, payload)
+        hit = cache.load(name, payload)
         if hit is None:
             todo.append((name, payload))
         else:
@@ -137,6 +135,7 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
         else:
             results = [_compute(n, params, settings, bnd.region, quiet) for n, _ in todo]
         for (name, payload), (region, info) in zip(todo, results):
+            cache.store(name, payload, region, info)
             remember(name, region, info, payload, False)
     return OvertakeLibrary(params, {n: sets[n] for n in SET_NAMES}, models)
 
