@@ -245,18 +245,48 @@ class Polyhedron:
 
     # ---- V-representation --------------------------------------------
     def generators(self):
-        """Vertices and rays through pycddlib (float), checked against the H-rep.
+        """Vertices and rays ``(V, R)`` with ``P = conv(V) + cone(R)``: complete, or an error.
 
-        Returns ``(vertices, rays)`` as arrays; lines are returned as pairs of
-        opposite rays. Never calls cddlib's canonicalize, which can abort the
-        process on float input (cddlib before PR #77 frees unset pointers when
-        its linearity LP fails).
+        A box gives its corners exactly. Otherwise cddlib (float) proposes generators and the answer
+        is checked against LPs, the referee:
+
+        - bounded P: ``conv(V) ⊆ P`` (each vertex satisfies ``A v <= b`` to ``GENERATOR_TOL``) and
+          ``P ⊆ conv(V)``: every facet ``n^T x <= d`` of ``conv(V)`` (and both sides of each equation of
+          its affine hull) has ``h_P(n) <= d + GENERATOR_TOL``. A facet that fails adds the LP's
+          maximiser, a vertex of P that cddlib missed, and the hull is checked again, so an
+          incomplete or inconsistent float answer is repaired (or, after ``max_rounds``, raises);
+        - unbounded P: the support of ``conv(V) + cone(R)`` must equal the LP's in every row
+          direction, both directions of every axis and 64 fixed random directions; a mismatch raises
+          ``ArithmeticError`` (checked, not proved: a cone has no finite facet test here).
+
+        Lines are returned as pairs of opposite rays. Never calls cddlib's canonicalize, which can
+        abort the process on float input.
         """
-        import cdd
-
+        if self._box is not None and np.all(np.isfinite(self._box[0])) and np.all(np.isfinite(self._box[1])):
+            return _box_corners(*self._box), np.zeros((0, self.dim))
         if self.n_constraints == 0:
             eye = np.eye(self.dim)
             return np.zeros((1, self.dim)), np.vstack([eye, -eye])
+        if self.is_empty():
+            return np.zeros((0, self.dim)), np.zeros((0, self.dim))
+        try:
+            V, R = self._cdd_generators()
+        except (RuntimeError, ValueError):  # "numerical inconsistency": retry without redundant rows,
+            try:                            # then start from LP maximisers
+                V, R = self.minimal()._cdd_generators()
+            except (RuntimeError, ValueError):
+                V, R = np.zeros((0, self.dim)), None
+        lo, hi = self.bounding_box()
+        if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+            return _complete_vertices(self, V), np.zeros((0, self.dim))
+        if R is None:
+            raise ArithmeticError("cddlib failed on an unbounded polyhedron; no verified fallback for cones")
+        _check_unbounded_generators(self, V, R)
+        return V, R
+
+    def _cdd_generators(self):
+        import cdd
+
         mat = cdd.matrix_from_array(np.hstack([self.b[:, None], -self.A]).tolist(),
                                     rep_type=cdd.RepType.INEQUALITY)
         gens = cdd.copy_generators(cdd.polyhedron_from_matrix(mat))
@@ -267,9 +297,120 @@ class Polyhedron:
         rays = G[~is_vertex, 1:]
         if lines:
             rays = np.vstack([rays, -G[lines, 1:]])
-        if vertices.size and not np.all(self.contains(vertices, tol=1e-6)):
-            raise ArithmeticError("cddlib returned a vertex outside the polyhedron")
         return vertices, rays
+
+
+GENERATOR_TOL = 1e-6      # vertices in P and P inside conv(V), absolute on unit-norm rows (LP feasibility is 1e-7)
+
+
+def _box_corners(lo, hi) -> np.ndarray:
+    n = lo.size
+    bits = (np.arange(2 ** n)[:, None] >> np.arange(n)[None, :]) & 1
+    return np.where(bits == 1, hi, lo).astype(float)
+
+
+def _hull_inequalities(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``N x <= d`` that describe ``conv(V)`` (facets, and both sides of its affine hull)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    n = V.shape[1]
+    c = V.mean(axis=0)
+    _, sing, Vt = np.linalg.svd(V - c, full_matrices=True)
+    scale = max(1.0, float(np.abs(V).max()))
+    k = int(np.sum(sing > 1e-9 * scale))
+    U, N_eq = Vt[:k].T, Vt[k:]
+    rows = [N_eq, -N_eq]
+    rhs = [N_eq @ c, -(N_eq @ c)]
+    Z = (V - c) @ U
+    if k == 1:
+        rows += [U.T, -U.T]
+        rhs += [np.array([Z.max()]) + U.T @ c, np.array([-Z.min()]) - U.T @ c]
+    elif k >= 2:
+        try:
+            hull = ConvexHull(Z)  # merged facets: coplanar simplices share one equation
+        except QhullError:  # nearly degenerate points: joggle; the offsets below are recomputed exactly
+            try:
+                hull = ConvexHull(Z, qhull_options="QJ")
+            except QhullError as exc:
+                raise ArithmeticError(f"qhull failed on {len(V)} candidate vertices: {exc}") from exc
+        facet_normals = np.unique(np.round(hull.equations[:, :k], 12), axis=0)
+        normals = facet_normals @ U.T
+        rows.append(normals)
+        rhs.append((V @ normals.T).max(axis=0))  # each facet's offset, exact for the points themselves
+    return np.vstack(rows).reshape(-1, n), np.concatenate(rhs)
+
+
+def _merge_close(V: np.ndarray, tol: float) -> np.ndarray:
+    """One point per cluster of points closer than ``tol`` in every coordinate (grid snapping)."""
+    _, first = np.unique(np.round(V / tol), axis=0, return_index=True)
+    return V[np.sort(first)]
+
+
+def _complete_vertices(P: "Polyhedron", V: np.ndarray, max_rounds: int = 64,
+                       max_points: int = 20_000) -> np.ndarray:
+    """The vertices of bounded P: ``V`` checked and repaired until ``conv(V) = P`` (see generators)."""
+    from rcis.lp import InequalityLP
+
+    lp = InequalityLP(P.A, P.b)
+    V = V[P.contains(V, tol=GENERATOR_TOL)] if V.size else V
+    if V.shape[0] == 0:  # nothing usable from cddlib: start from the maximisers along the axes
+        eye = np.eye(P.dim)
+        V = np.array([lp.maximize(d).x for d in np.vstack([eye, -eye])])
+    scale = max(1.0, float(np.abs(V).max()))
+    for _ in range(max_rounds):
+        V = _merge_close(V, 1e-9 * scale)  # near-duplicates (degenerate vertices) would blow the hull up
+        if V.shape[0] > max_points:
+            raise ArithmeticError(f"vertex enumeration: more than {max_points} candidate vertices")
+        N, d = _hull_inequalities(V)
+        missing = []
+        for normal, offset in zip(N, d):
+            res = lp.maximize(normal)
+            if res.value > offset + GENERATOR_TOL * max(1.0, abs(offset)):
+                missing.append(res.x)
+        if not missing:
+            return _hull_vertices(V)
+        V = np.unique(np.vstack([V, missing]), axis=0)
+    raise ArithmeticError(f"vertex enumeration did not close after {max_rounds} repair rounds")
+
+
+def _hull_vertices(V: np.ndarray) -> np.ndarray:
+    """The extreme points among V (drops points cddlib or the LPs gave on edges or faces)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if V.shape[0] <= V.shape[1]:
+        return V
+    c = V.mean(axis=0)
+    _, sing, Vt = np.linalg.svd(V - c, full_matrices=False)
+    k = int(np.sum(sing > 1e-9 * max(1.0, float(np.abs(V).max()))))
+    if k < 2:
+        if k == 0:
+            return V[:1]
+        z = (V - c) @ Vt[0]
+        return V[[int(np.argmin(z)), int(np.argmax(z))]]
+    try:
+        return V[ConvexHull((V - c) @ Vt[:k].T, qhull_options="Qt").vertices]
+    except QhullError:
+        return V
+
+
+def _check_unbounded_generators(P: "Polyhedron", V: np.ndarray, R: np.ndarray) -> None:
+    if V.size and not np.all(P.contains(V, tol=GENERATOR_TOL)):
+        raise ArithmeticError("cddlib returned a vertex outside the polyhedron")
+    if R.size and np.any(R @ P.A.T > GENERATOR_TOL * np.linalg.norm(R, axis=1)[:, None]):
+        raise ArithmeticError("cddlib returned a ray outside the recession cone")
+    eye = np.eye(P.dim)
+    D = np.vstack([P.A, eye, -eye, np.random.default_rng(0).normal(size=(64, P.dim))])
+    lp_support = P.support_many(D)
+    ray_reach = (D @ R.T > 1e-9).any(axis=1) if R.size else np.zeros(len(D), dtype=bool)
+    gen_support = np.where(ray_reach, np.inf, (D @ V.T).max(axis=1) if V.size else -np.inf)
+    both_inf = np.isinf(lp_support) & np.isinf(gen_support) & (np.sign(lp_support) == np.sign(gen_support))
+    with np.errstate(invalid="ignore"):
+        gap = np.where(both_inf, 0.0, np.abs(lp_support - gen_support))
+    bad = ~(gap <= GENERATOR_TOL * np.maximum(1.0, np.abs(np.where(np.isfinite(lp_support), lp_support, 0.0))))
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ArithmeticError(f"incomplete generators: in direction {np.round(D[i], 6).tolist()} the LP support is "
+                              f"{lp_support[i]!r}, the generators give {gen_support[i]!r}")
 
 
 def _dedupe(A: np.ndarray, b: np.ndarray):
