@@ -22,10 +22,33 @@ CAR_HALF = (2.25, 0.4)
 LANE_MARKINGS = (-0.9, 0.9, 2.7)
 
 
-class OvertakeRecorder:
+def run_blueprint(series: tuple[str, ...], road_name: str = "road"):
+    """The layout a rollout recording opens with: the road left; the inputs beside their admissible
+    range, and the events, right."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial2DView(origin="/road", name=road_name),
+        rrb.Vertical(rrb.TimeSeriesView(origin="/", contents=[f"{s}/**" for s in series],
+                                        name="inputs: proposed, applied, admissible range"),
+                     rrb.TextLogView(origin="/events", name="overrides and events"), row_shares=[3, 1]),
+        column_shares=[3, 2]), collapse_panels=True)
+
+
+class _Closing:
+    """Recorders close (flush the .rrd) when a ``with`` block ends, on an exception too."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class OvertakeRecorder(_Closing):
     def __init__(self, path: Path, application_id: str = "guardian-overtake"):
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(path))
+        self.rec.save(str(path), default_blueprint=run_blueprint(("/inputs", "/admissible", "/intention")))
         self.path = Path(path)
         self.step_index = 0
         self.episode = 0
@@ -66,7 +89,8 @@ class OvertakeRecorder:
             if record["overridden"]:
                 rec.log("events/override", rr.TextLog(
                     f"override ({record['changed']}): {np.round(proposed, 3).tolist()} -> "
-                    f"{np.round(applied, 3).tolist()}" + (" [UNSAFE state: fail-safe]" if record["unsafe"] else "")))
+                    f"{np.round(applied, 3).tolist()}" + (" [outside the set]" if not record["in_invariant_set"] else "")
+                    + (" [fail-safe input]" if record["failsafe"] else "")))
         self.ego_x += v * dt
         self.step_index += 1
 
@@ -99,7 +123,7 @@ def read_texts(path: Path, entity: str) -> list[str]:
 HIGHWAY_LANE_WIDTH = 4.0
 
 
-class HighwayRecorder:
+class HighwayRecorder(_Closing):
     """A highway run: lanes, every car, the ego's triggering decision, verdicts and overrides.
 
     * ``road/lanes`` lane markings (static), ``road/cars`` the traffic and ``road/ego`` the ego
@@ -112,7 +136,7 @@ class HighwayRecorder:
 
     def __init__(self, path: Path, n_lanes: int, application_id: str = "guardian-highway"):
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(path))
+        self.rec.save(str(path), default_blueprint=run_blueprint(("/ego",)))
         self.path = Path(path)
         self.n_lanes = n_lanes
         self.step_index = 0
@@ -255,7 +279,7 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
 
 
 # ---- highway-env environments under the Guardian ----------------------------------------------------
-class GuardianRecorder:
+class GuardianRecorder(_Closing):
     """Rollouts of ``guardian.wrapper.Guardian`` on a highway-env environment, in simulator coordinates.
 
     * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
@@ -272,7 +296,7 @@ class GuardianRecorder:
 
     def __init__(self, path: Path, application_id: str = "guardian-highway-env"):
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(path))
+        self.rec.save(str(path), default_blueprint=run_blueprint(("/inputs", "/admissible", "/intention")))
         self.path = Path(path)
         self.step_index = 0
         self._valid = None

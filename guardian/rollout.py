@@ -37,39 +37,41 @@ def overtake_rollouts(library, intention: str, driver: str, episodes: int, seed:
         recorder = OvertakeRecorder(rerun_path)
     totals = {"steps": 0, "safety_violations": 0, "override_steps": 0, "failsafe_steps": 0,
               "identify_steps": [], "wrong_identifications": 0}
-    t0 = time.perf_counter()
-    for ep in range(episodes):
-        obs, _ = env.reset(seed=seed + ep)
-        drv.reset(np.random.default_rng(seed + ep + 1_000_003))
-        if passive:
-            estimator.reset()
-        if recorder:
-            recorder.start_episode(ep, obs)
-        done = False
-        while not done:
-            proposed = drv.act(obs)
-            prev = obs
-            obs, _, terminated, truncated, info = env.step(proposed)
-            record = info.get("guardian")
-            applied = np.array(record["applied"]) if record else proposed
+    try:
+        t0 = time.perf_counter()
+        for ep in range(episodes):
+            obs, _ = env.reset(seed=seed + ep)
+            drv.reset(np.random.default_rng(seed + ep + 1_000_003))
             if passive:
-                estimator.update(prev, applied, obs)
-            totals["steps"] += 1
-            totals["safety_violations"] += int(info["unsafe"])
-            if record:
-                totals["override_steps"] += int(record["overridden"])
-                totals["failsafe_steps"] += int(record["unsafe"])
+                estimator.reset()
             if recorder:
-                recorder.log_step(prev, library.params.dt, record, proposed, applied)
-            done = terminated or truncated
-        if estimator.identified_at is not None:
-            totals["identify_steps"].append(estimator.identified_at)
-            totals["wrong_identifications"] += int(estimator.valid != [intention])
-        if progress and ((ep + 1) % max(1, episodes // 10) == 0 or ep + 1 == episodes):
-            print(f"[rollout {intention}/{driver}] {ep + 1}/{episodes} episodes, "
-                  f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
-    if recorder:
-        recorder.close()
+                recorder.start_episode(ep, obs)
+            done = False
+            while not done:
+                proposed = drv.act(obs)
+                prev = obs
+                obs, _, terminated, truncated, info = env.step(proposed)
+                record = info.get("guardian")
+                applied = np.array(record["applied"]) if record else proposed
+                if passive:
+                    estimator.update(prev, applied, obs)
+                totals["steps"] += 1
+                totals["safety_violations"] += int(info["unsafe"])
+                if record:
+                    totals["override_steps"] += int(record["overridden"])
+                    totals["failsafe_steps"] += int(record["failsafe"])
+                if recorder:
+                    recorder.log_step(prev, library.params.dt, record, proposed, applied)
+                done = terminated or truncated
+            if estimator.identified_at is not None:
+                totals["identify_steps"].append(estimator.identified_at)
+                totals["wrong_identifications"] += int(estimator.valid != [intention])
+            if progress and ((ep + 1) % max(1, episodes // 10) == 0 or ep + 1 == episodes):
+                print(f"[rollout {intention}/{driver}] {ep + 1}/{episodes} episodes, "
+                      f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    finally:  # the .rrd is closed on every exit
+        if recorder:
+            recorder.close()
     ident = totals.pop("identify_steps")
     return {"episodes": episodes, "intention": intention, "driver": driver, "disturbance": disturbance,
             "guardian": guardian, "intention_aware": guardian and use_intention, **totals,

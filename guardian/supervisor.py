@@ -8,11 +8,11 @@ if admissible, else applies the nearest admissible input by priority.
 
 Fail-safe (the state is outside the active invariant set, so Theorem 4 no
 longer applies — e.g. the episode started outside ``C_bnd`` or the lead fits no
-model): the record says ``unsafe=True`` and the guardian applies
+model): the record says ``in_invariant_set=False`` and the guardian applies
 
 * the nearest input of ``S(x)`` if it is non-empty (every successor is then
   back inside the active set, for every disturbance), else
-* ``FAILSAFE_INPUT``: full braking with no lateral motion.
+* ``FAILSAFE_INPUT``: full braking with no lateral motion (the record says ``failsafe=True``).
 """
 from __future__ import annotations
 
@@ -38,7 +38,7 @@ class GuardianRecord:
     valid_intentions: list
     identified: str | None
     in_invariant_set: bool       # x in the active set: Theorem 4's guarantee holds
-    unsafe: bool                 # not in_invariant_set: a fail-safe input was applied
+    failsafe: bool               # S(x) was empty: FAILSAFE_INPUT was applied
     admissible: list = field(default_factory=list)      # S(x) as polygons [[a, v_ey], ...]
     throttle_range: list = field(default_factory=list)  # admissible a_ex at the proposed v_ey
     steering_range: list = field(default_factory=list)  # admissible v_ey at the proposed a_ex
@@ -114,7 +114,7 @@ class IntentionAwareGuardian:
             overridden=bool(overridden), changed=changed, active_set=view.name,
             valid_intentions=list(self.estimator.valid),
             identified=self.identified,
-            in_invariant_set=view.inside, unsafe=not view.inside,
+            in_invariant_set=view.inside, failsafe=changed == "failsafe",
             admissible=[P.tolist() for P in query.polygons],
             throttle_range=query.ranges(0, u[1]),
             steering_range=query.ranges(1, u[0]))

@@ -20,6 +20,19 @@ from rcis.invariant import COVER_BUDGET, inside_out, stderr_progress
 from rcis.region import Region
 
 SET_NAMES = ("bounded_velocity", "aggressive", "cautious")
+PAPER_NAMES = {"bounded_velocity": "C_bnd", "aggressive": "C_a", "cautious": "C_c"}  # Section 6.4.1
+_BY_ANY_NAME = {**{n: n for n in SET_NAMES}, **{v: k for k, v in PAPER_NAMES.items()}}
+
+
+def set_name(name: str) -> str:
+    """The library's name of a set given either name (``C_c`` or ``cautious``); ValueError names both."""
+    try:
+        return _BY_ANY_NAME[name]
+    except KeyError:
+        choices = ", ".join(f"{PAPER_NAMES[n]} ({n})" for n in SET_NAMES)
+        raise ValueError(f"unknown set {name!r}; choose from {choices}") from None
+
+
 SEED_OF = {"bounded_velocity": "left_lane", "aggressive": "bounded_velocity", "cautious": "bounded_velocity"}
 
 
@@ -60,10 +73,11 @@ class OvertakeLibrary:
         self._admissible: dict[str, AdmissibleInputs] = {}
 
     def region(self, name: str) -> Region:
-        return self.sets[name].region
+        return self.sets[set_name(name)].region
 
     def admissible(self, name: str) -> AdmissibleInputs:
         """The supervisor ``S_I`` of set ``name`` (Definition 15)."""
+        name = set_name(name)
         if name not in self._admissible:
             self._admissible[name] = AdmissibleInputs(self.models[name].system, self.region(name))
         return self._admissible[name]
@@ -144,8 +158,9 @@ def export_set(library: OvertakeLibrary, name: str) -> dict:
     """The set as JSON: x is in it iff ``A x <= b`` for some piece."""
     from intention.params import STATE_NAMES
 
+    name = set_name(name)
     s = library.sets[name]
-    return {"name": name, "state": list(STATE_NAMES),
+    return {"name": name, "paper_name": PAPER_NAMES[name], "state": list(STATE_NAMES),
             "pieces": [{"A": P.A.tolist(), "b": P.b.tolist()} for P in s.region.pieces],
             "params": {**library.params.as_dict(), "iterations": s.iterations, "converged": s.converged,
                        "cache_key": s.key, "settings": {k: v for k, v in s.payload.items() if k != "params"}}}

@@ -53,7 +53,7 @@ def plot_slices(library, out: Path, slices=((25.0, 20.0), (30.0, 25.0), (20.0, 2
             ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     path = Path(out) / "fig6_3_slices.png"
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # nothing clipped, whatever the labels
     plt.close(fig)
     return path
 
@@ -72,6 +72,6 @@ def plot_admissible(library, out: Path, state=FIG64_STATE) -> Path:
     fig.suptitle(f"Admissible inputs at x = {list(state)}")
     fig.tight_layout()
     path = Path(out) / "fig6_4_admissible_inputs.png"
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # nothing clipped, whatever the labels
     plt.close(fig)
     return path

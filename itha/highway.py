@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from itha.car_following import CarFollowingParams, admissible_inputs, speeds_to_inputs
+from itha.idm import idm_acceleration as idm
 
 STAY, LEFT, RIGHT = "stay", "left", "right"
 LANE_SHIFT = {STAY: 0, LEFT: 1, RIGHT: -1}
@@ -315,13 +316,8 @@ def choose(verdicts, v: float, prm: HighwayParams):
 
 # ---- IDM traffic (7.8) -----------------------------------------------------------------
 def idm_acceleration(prm: HighwayParams, v: float, gap: float, v_lead: float, v_desired: float) -> float:
-    free = 1.0 - (v / v_desired) ** prm.idm_delta
-    if math.isinf(gap):
-        inter = 0.0
-    else:
-        s_star = prm.idm_s0 + v * prm.idm_T + v * (v - v_lead) / (2 * math.sqrt(prm.idm_a * prm.idm_b))
-        inter = (max(s_star, 0.0) / max(gap, 1e-3)) ** 2
-    return prm.idm_a * (free - inter)
+    """IDM (7.8) with the highway's parameters (``itha.idm``)."""
+    return idm(v, gap, v_lead, v_desired, prm.idm_a, prm.idm_b, prm.idm_s0, prm.idm_T, prm.idm_delta)
 
 
 def clip_input(cf: CarFollowingParams, v: float, a: float) -> float:

@@ -23,8 +23,8 @@ import numpy as np
 from rcis import _kernels
 from rcis.pwa import RUNTIME_MARGIN, PWASystem
 from rcis.region import Region
+from rcis.tolerances import BOUNDS_ROUNDING  # noqa: F401 (re-exported)
 
-BOUNDS_ROUNDING = 1e-9  # an input this close outside U is rounding, larger is a bug
 
 
 @dataclass(frozen=True)

@@ -27,8 +27,8 @@ from rcis.lp import InequalityLP
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PWASystem
 from rcis.region import Region
+from rcis.tolerances import MEMBERSHIP_TOL  # noqa: F401 (re-exported)
 
-MEMBERSHIP_TOL = 1e-9  # float evaluation of A x <= b; the sets keep margins of 1e-6
 
 
 @dataclass

@@ -22,6 +22,7 @@ from typing import Callable
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PRE_MARGIN, PWASystem
 from rcis.region import SLIVER_EPS, Region, _box_inside, merge_convex
+from rcis.tolerances import FIXED_POINT_EPS  # noqa: F401 (re-exported)
 
 Progress = Callable[[dict], None]
 
@@ -103,7 +104,6 @@ def inside_out(system: PWASystem, seed: Region, safe: Region, max_iterations: in
     return InvariantResult(Region(pieces, seed.dim), k, converged, time.perf_counter() - t0, history)
 
 
-FIXED_POINT_EPS = 1e-9  # far below PRE_MARGIN: a converged C_k really is inside Pre(C_k)
 
 
 def outside_in(system: PWASystem, safe: Region, max_iterations: int = 50,

@@ -18,11 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from rcis.lp import InequalityLP
+from rcis.tolerances import (  # noqa: F401 (re-exported)
+    CHEBYSHEV_CAP, FM_ROUNDING, GENERATOR_TOL, INCLUSION_TOL, REDUNDANCY_TOL, ROW_NORM_EPS)
 
-ROW_NORM_EPS = 1e-12     # a row with a smaller norm is the constant constraint 0 <= b
-REDUNDANCY_TOL = 1e-10   # a row is implied if max a_i x over the others <= b_i + this
-CHEBYSHEV_CAP = 1e4      # radius cap so that unbounded polyhedra get a finite ball
-FM_ROUNDING = 4e-15      # relative lowering of Fourier-Motzkin right-hand sides
 
 
 @dataclass(frozen=True)
@@ -141,7 +139,7 @@ class Polyhedron:
     def is_fulldim(self, eps: float = 1e-7) -> bool:
         return self.chebyshev_ball().radius > eps
 
-    def contains_polyhedron(self, Q: "Polyhedron", tol: float = 1e-7) -> bool:
+    def contains_polyhedron(self, Q: "Polyhedron", tol: float = INCLUSION_TOL) -> bool:
         """``Q ⊆ self``: every row of self bounds Q (empty Q is contained)."""
         if self.n_constraints == 0:
             return True
@@ -281,6 +279,8 @@ class Polyhedron:
             return _complete_vertices(self, V), np.zeros((0, self.dim))
         if R is None:
             raise ArithmeticError("cddlib failed on an unbounded polyhedron; no verified fallback for cones")
+        if V.shape[0] == 0:  # cddlib lists a cone {A x <= 0} by its rays alone: its apex is the origin
+            V = np.zeros((1, self.dim)) if self.contains(np.zeros(self.dim)) else self.chebyshev_ball().center[None]
         _check_unbounded_generators(self, V, R)
         return V, R
 
@@ -300,7 +300,6 @@ class Polyhedron:
         return vertices, rays
 
 
-GENERATOR_TOL = 1e-6      # vertices in P and P inside conv(V), absolute on unit-norm rows (LP feasibility is 1e-7)
 
 
 def _box_corners(lo, hi) -> np.ndarray:

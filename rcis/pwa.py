@@ -21,10 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rcis.polyhedron import Polyhedron
+from rcis.tolerances import PIECE_TOL, PRE_MARGIN, RUNTIME_MARGIN  # noqa: F401 (re-exported)
 
-PRE_MARGIN = 1e-6        # targets are eroded by this much, so rounding can only shrink Pre
-RUNTIME_MARGIN = 5e-7    # admissible inputs use a smaller erosion, so every x in Pre has one
-PIECE_TOL = 1e-9         # closed domain rows accept this much rounding (as set membership)
 
 
 @dataclass(frozen=True)

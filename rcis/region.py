@@ -13,8 +13,8 @@ import numpy as np
 
 from rcis import _kernels
 from rcis.polyhedron import Polyhedron
+from rcis.tolerances import SLIVER_EPS  # noqa: F401 (re-exported)
 
-SLIVER_EPS = 1e-6  # pieces whose inscribed ball is thinner than this count as empty
 
 
 class Region:

@@ -30,8 +30,12 @@ def test_rcis_export_writes_the_documented_shape(library, cache_dir, tmp_path, c
     out = tmp_path / "c.json"
     assert main(["rcis", "export", "cautious", "--out", str(out), "--cache-dir", str(cache_dir)]) == 0
     data = json.loads(out.read_text())
-    assert set(data) == {"name", "state", "pieces", "params"}
+    assert set(data) == {"name", "paper_name", "state", "pieces", "params"} and data["paper_name"] == "C_c"
     assert main(["rcis", "export", "nope", "--out", str(out), "--cache-dir", str(cache_dir)]) == 2
+    paper = tmp_path / "paper.json"
+    assert main(["rcis", "export", "C_c", "--out", str(paper), "--cache-dir", str(cache_dir)]) == 0
+    assert json.loads(paper.read_text()) == data  # the paper's name and the long one are the same set
+    assert library.region("C_a") is library.region("aggressive")
 
 
 def test_rollout_json(library, cache_dir, capsys):
@@ -148,6 +152,8 @@ def test_rollout_highway_overtake_json_rerun_and_video(library, cache_dir, tmp_p
     if data["override_steps"]:
         assert read_texts(rrd, "/events/override")
     assert list(video.rglob("*.mp4"))
+    from rerun.chunk import RrdReader
+    assert len(list(RrdReader(str(rrd)).blueprints())) == 1
 
 
 def test_rollout_env_refuses_what_it_cannot_run(library, cache_dir, capsys):
@@ -168,11 +174,12 @@ def test_ego_speed_min_reaches_the_sets_and_the_env(tmp_path, capsys):
                                    "--episodes", "1", "--ego-speed-min", "0", "--iterations", "0",
                                    "--cache-dir", str(tmp_path), "--json"])
     assert code == 0 and data["safety_violations"] == 0
-    from guardian.cli import _library, build_parser
+    from guardian.cli import build_parser
+    from guardian.cli.common import load_library
 
     args = build_parser().parse_args(["rcis", "build", "--ego-speed-min", "0", "--iterations", "0",
                                       "--cache-dir", str(tmp_path)])
-    assert _library(args).params.v_ex_bounds == (0.0, 36.0)
+    assert load_library(args).params.v_ex_bounds == (0.0, 36.0)
     with pytest.raises(SystemExit):
         build_parser().parse_args(["rcis", "build", "--ego-speed-min", "40"])
     assert "--ego-speed-min must be in [0, 36)" in capsys.readouterr().err

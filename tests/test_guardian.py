@@ -44,7 +44,7 @@ def test_supervised_random_driver_never_leaves_the_invariant_set(library, intent
             obs, _, terminated, truncated, info = env.step(driver.act(obs))
             g = info["guardian"]
             assert not info["unsafe"], obs
-            assert g["in_invariant_set"] and not g["unsafe"]
+            assert g["in_invariant_set"] and not g["failsafe"]
             assert -3 <= g["applied"][0] <= 3 and -1.8 <= g["applied"][1] <= 1.8
             assert intention in g["valid_intentions"]
             done = terminated or truncated
@@ -77,7 +77,7 @@ def test_outside_every_invariant_set_the_guardian_flags_and_fails_safe(library):
     x = np.array([30.0, -0.5, 10.5, 5.0])  # 10.5 m behind a slow lead in the right lane
     assert not library.region("bounded_velocity").contains(x)
     applied, rec = guard.step(x, [3.0, 0.0])
-    assert rec.unsafe and not rec.in_invariant_set and rec.overridden
+    assert not rec.in_invariant_set and rec.overridden and rec.failsafe == (rec.changed == "failsafe")
     if rec.admissible:
         assert library.admissible("bounded_velocity").is_admissible(x, applied)
     else:
@@ -105,3 +105,5 @@ def test_rerun_recording_has_the_scene_and_the_overrides(library, tmp_path):
     overrides = read_texts(path, "/events/override")
     assert len(overrides) == r["override_steps"] > 0
     assert any("cautious" in t for t in read_texts(path, "/intention/log"))
+    from rerun.chunk import RrdReader
+    assert len(list(RrdReader(str(path)).blueprints())) == 1  # opens on the road, inputs and events

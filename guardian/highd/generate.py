@@ -19,6 +19,9 @@ import numpy as np
 import pandas as pd
 
 from guardian.highd.schema import RECORDING_META, TRACKS, TRACKS_META, file_name
+from itha.idm import idm_acceleration
+
+JAM_DISTANCE = 2.0  # m, IDM s0 of every generated vehicle
 
 
 @dataclass(frozen=True)
@@ -104,12 +107,11 @@ class Carriageway:
         return lead
 
     def _idm(self, k, gap, v_lead):
+        """IDM (7.8, ``itha.idm``) with per-vehicle desired speed, time gap, a and b; jam distance 2 m."""
         X = self.X
-        v = X["v"][k]
-        free = 1.0 - (v / X["v0"][k]) ** 4
-        s_star = 2.0 + v * X["T"][k] + v * (v - v_lead) / (2 * np.sqrt(X["a"][k] * X["b"][k]))
-        inter = np.where(np.isfinite(gap), (np.maximum(s_star, 0) / np.maximum(gap, 0.1)) ** 2, 0.0)
-        return np.maximum(X["a"][k] * (free - inter), -9.0)
+        a = idm_acceleration(X["v"][k], gap, v_lead, X["v0"][k], X["a"][k], X["b"][k], JAM_DISTANCE, X["T"][k],
+                             gap_floor=0.1)
+        return np.maximum(a, -9.0)
 
     def _acc_in_lane(self, k, lane):
         """IDM acceleration of vehicle k if it were in ``lane`` (and who leads/follows it there)."""

@@ -76,7 +76,6 @@ class Session:
     def step(self, state, u) -> dict:
         _, record = self.guardian.step(np.asarray(state, dtype=float), np.asarray(u, dtype=float))
         out = record.as_dict()
-        out["failsafe"] = record.changed == "failsafe"
         self.steps += 1
         self.last = out
         return out

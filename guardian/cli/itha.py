@@ -1,0 +1,81 @@
+"""``guardian itha highway|processors``: the Chapter 7 experiments."""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from guardian.cli.common import emit, progress_bar, positive_error
+
+
+def cmd_itha_highway(args) -> int:
+    from itha.car_following import make_set
+    from itha.highway import OVERAPPROXIMATIONS, HighwayParams, highway_experiment, run_highway_episode
+
+    bad = positive_error(args, "runs", "steps")
+    if bad:
+        print(f"guardian itha highway: {bad}", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    prm = HighwayParams()
+    S = make_set(prm.car_following, args.set, cache_dir=args.cache_dir, rebuild=args.rebuild,
+                 log=lambda m: print(m, file=sys.stderr))
+    which = OVERAPPROXIMATIONS if args.overapprox == "both" else (args.overapprox,)
+    result = highway_experiment(args.runs, args.steps, args.seed, S, prm, which,
+                                progress=progress_bar("itha highway"))
+    if args.rerun:
+        import numpy as np
+        from guardian.rerun_log import HighwayRecorder
+
+        with HighwayRecorder(args.rerun, prm.n_lanes) as rec:
+            for oa in which:
+                ep = run_highway_episode(prm, S, oa, args.steps, np.random.default_rng([args.seed, 0]), record=True)
+                rec.log_itha_frames(ep.frames)
+    out = dict(result)
+    out["set"] = {"kind": S.kind, **getattr(S, "info", {})}
+    out["seconds"] = round(time.perf_counter() - t0, 3)
+    text = "\n".join(f"{oa:8s} distance_mean={r['distance_mean']:.1f} m unsafe_steps={r['unsafe_steps']} "
+                     f"lane_changes={r['lane_changes']} collisions={r['collisions']}"
+                     for oa, r in result.items() if oa in which)
+    emit(out, args.json, text)
+    return 0 if all(result[oa]["unsafe_steps"] == 0 for oa in which) else 1
+
+
+def cmd_itha_processors(args) -> int:
+    from itha.processors import ProcessorParams, processors_experiment
+
+    bad = positive_error(args, "runs", "steps")
+    if bad:
+        print(f"guardian itha processors: {bad}", file=sys.stderr)
+        return 2
+    result = processors_experiment(args.runs, args.steps, args.seed, ProcessorParams(keep_jobs=args.keep_jobs),
+                                   progress=progress_bar("itha processors"))
+    text = "\n".join(f"{k:8s} accepted_jobs_mean={r['accepted_jobs_mean']:.2f} "
+                     f"violations_mean={r['violations_mean']:.2f}" for k, r in result.items())
+    emit(result, args.json, text)
+    return 0
+
+
+def add_commands(sub) -> None:
+    itha = sub.add_parser("itha", help="inter-triggering hybrid automata experiments (Chapter 7)")
+    isub = itha.add_subparsers(dest="itha_command", required=True)
+    p = isub.add_parser("highway", help="Section 7.4.1: the responsible ego on a 5-lane highway with IDM traffic")
+    p.add_argument("--runs", type=int, default=25)
+    p.add_argument("--steps", type=int, default=500)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overapprox", choices=["trivial", "ordered", "both"], default="both")
+    p.add_argument("--set", choices=["polyhedral", "closed-form"], default="polyhedral",
+                   help="the car-following RCIS: computed by rcis (cached) or its closed form")
+    p.add_argument("--cache-dir", type=Path, default=None)
+    p.add_argument("--rebuild", action="store_true")
+    p.add_argument("--rerun", type=Path, default=None, help="record run 0 of each over-approximation (.rrd)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_itha_highway)
+    p = isub.add_parser("processors", help="Section 7.4.2: parallel processors, Table 7.1")
+    p.add_argument("--runs", type=int, default=25)
+    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--keep-jobs", type=int, default=1,
+                   help="jobs a recruiter keeps for itself (0 = (7.9) literally; see README)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_itha_processors)

@@ -1,0 +1,134 @@
+"""``guardian rollout``: supervised rollouts (the overtake env, or a highway-env environment with --env)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from guardian.cli.common import emit, load_library, progress_bar, combine_runs, intention_name, add_library_options
+
+
+def cmd_rollout_highway_env(args) -> int:
+    import gymnasium as gym
+
+    import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
+    import highway_env  # noqa: F401 - registers the environments
+    from envs.agents import AGENTS
+    from envs.highway_overtake import ConfigError
+    from guardian.rollout import OVERTAKE_ENV, highway_rollouts
+
+    if args.env not in gym.registry:
+        known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "roundabout", "guardian/")))
+        print(f"guardian rollout: unknown environment {args.env!r}; ids: {', '.join(known)}", file=sys.stderr)
+        return 2
+    if args.agent not in AGENTS:
+        print(f"guardian rollout: unknown agent {args.agent!r}; choose from {', '.join(AGENTS)}", file=sys.stderr)
+        return 2
+    overtake = args.env == OVERTAKE_ENV
+    if args.agent in ("mpc", "bad", "careful") and not (overtake and args.action in (None, "continuous")):
+        print(f"guardian rollout: the {args.agent} driver drives {OVERTAKE_ENV} with --action continuous",
+              file=sys.stderr)
+        return 2
+    if args.traffic is not None and args.traffic < 0:
+        print(f"guardian rollout: --traffic must be >= 0, got {args.traffic}", file=sys.stderr)
+        return 2
+    library = load_library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
+    intentions = (("aggressive", "cautious") if args.intention == "all" else (args.intention,)) if overtake else (None,)
+    from guardian.wrapper import GuardianConfig
+
+    gcfg = GuardianConfig(use_intention=not args.no_intention, conflict=args.conflict)
+    runs = []
+    for k, intention in enumerate(intentions):
+        recorder = None
+        if args.rerun and k == 0:
+            from guardian.rerun_log import GuardianRecorder
+            recorder = GuardianRecorder(args.rerun)
+        label = f"rollout {args.env}" + (f" {intention}" if intention else "")
+        try:
+            r = highway_rollouts(args.env, args.agent, args.episodes, args.seed, action=args.action,
+                                 guardian=not args.no_guardian, library=library, intention=intention,
+                                 disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
+                                 env_config={"params": library.params} if library is not None else None,
+                                 progress=progress_bar(label), recorder=recorder,
+                                 video_dir=(args.video / (intention or "all")) if args.video else None)
+        except ConfigError as exc:
+            print(f"guardian rollout: {exc}", file=sys.stderr)
+            return 2
+        finally:
+            if recorder:
+                recorder.close()
+        r.update({"env": args.env, "agent": args.agent, "action": args.action or "default",
+                  "guardian": not args.no_guardian, "intention_aware": not args.no_guardian and not args.no_intention,
+                  "disturbance": args.disturbance})
+        if intention:
+            r["intention"] = intention
+        runs.append(r)
+    result = runs[0] if len(runs) == 1 else combine_runs(runs)
+    text = "\n".join(
+        f"{args.env} {r.get('intention', '')} {args.agent} guardian={'on' if r['guardian'] else 'off'} "
+        f"episodes={r['episodes']} steps={r['steps']} collisions={r['collisions']} "
+        f"ego_at_fault={r['ego_at_fault_collisions']} override_steps={r['override_steps']} "
+        f"safety_violations={r.get('safety_violations', '-')} model_violation_steps={r['model_violation_steps']} "
+        f"conflict_steps={r['conflict_steps']} distance_mean={r['distance_mean']:.1f} m" for r in runs)
+    emit(result, args.json, text)
+    return 0
+
+
+def cmd_rollout(args) -> int:
+    from envs.drivers import DRIVERS
+    from guardian.rollout import overtake_rollouts
+
+    if args.episodes < 1:
+        print("guardian rollout: --episodes must be at least 1", file=sys.stderr)
+        return 2
+    if args.env is not None:
+        if args.scenario is not None:
+            print("guardian rollout: --env and --scenario exclude each other", file=sys.stderr)
+            return 2
+        return cmd_rollout_highway_env(args)
+    lib = load_library(args)
+    intentions = ("aggressive", "cautious") if args.intention == "all" else (args.intention,)
+    drivers = DRIVERS if args.driver == "all" else (args.driver,)
+    runs = [overtake_rollouts(lib, i, d, args.episodes, args.seed, guardian=not args.no_guardian,
+                              use_intention=not args.no_intention, disturbance=args.disturbance,
+                              max_steps=args.max_steps, horizon=args.horizon,
+                              rerun_path=args.rerun if len(intentions) * len(drivers) == 1 else None)
+            for i in intentions for d in drivers]
+    result = runs[0] if len(runs) == 1 else combine_runs(runs)
+    text = "\n".join(f"{r['intention']:10s} {r['driver']:8s} episodes={r['episodes']} steps={r['steps']} "
+                     f"violations={r['safety_violations']} overrides={r['override_steps']} "
+                     f"identified={r['identified_fraction']:.2f} "
+                     f"mean_steps_to_identify={r['mean_steps_to_identify_intention']}" for r in runs)
+    emit(result, args.json, text)
+    return 0
+
+
+def add_commands(sub) -> None:
+    p = sub.add_parser("rollout", help="supervised rollouts of the overtake scenario")
+    p.add_argument("--scenario", choices=["overtake"], default=None,
+                   help="the overtake scenario (the default when --env is not given)")
+    p.add_argument("--env", default=None,
+                   help="a highway-env id: guardian/HighwayOvertake-v0 (lead part + ITHA), highway-v0, "
+                        "highway-fast-v0, ... (ITHA)")
+    p.add_argument("--agent", default="random",
+                   help="with --env: random | reckless | idle | mpc | bad | careful (the MPC drivers: "
+                        "HighwayOvertake, continuous)")
+    p.add_argument("--action", choices=["continuous", "meta"], default=None,
+                   help="with --env: the agent's action type (default: the env's own)")
+    p.add_argument("--traffic", type=int, default=None, help="with --env: number of other cars")
+    p.add_argument("--video", type=Path, default=None, help="with --env: write each episode as MP4 into this folder")
+    p.add_argument("--conflict", choices=["lead", "traffic"], default="traffic",
+                   help="with --env: who wins when self-safety against the car ahead and the lead's set do not intersect")
+    p.add_argument("--intention", type=intention_name, default="cautious",
+                   help="aggressive | cautious | all (C_a, C_c accepted)")
+    p.add_argument("--driver", choices=["mpc", "bad", "careful", "random", "all"], default="mpc")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--disturbance", choices=["random", "adversarial"], default="random")
+    p.add_argument("--max-steps", type=int, default=300, help="steps per episode (dt = 0.1 s)")
+    p.add_argument("--horizon", type=int, default=10, help="intention estimator horizon N")
+    p.add_argument("--no-guardian", action="store_true", help="drive without supervision")
+    p.add_argument("--no-intention", action="store_true",
+                   help="keep the guardian but pin it to the bounded-velocity set")
+    p.add_argument("--rerun", type=Path, default=None, help="write a rerun recording (.rrd)")
+    add_library_options(p)
+    p.set_defaults(func=cmd_rollout)
