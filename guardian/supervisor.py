@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from intention.estimator import IntentionEstimator
+from rcis.validate import finite_vector
 
 FAILSAFE_INPUT = (-3.0, 0.0)  # (a_ex, v_ey): brake fully, hold the lateral position
 AGNOSTIC = "bounded_velocity"
@@ -50,15 +51,6 @@ class GuardianRecord:
         return d
 
 
-def _finite_vector(v, n: int, what: str) -> np.ndarray:
-    arr = np.asarray(v, dtype=float)
-    if arr.shape != (n,):
-        raise ValueError(f"{what} must have {n} entries, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} has a non-finite entry: {arr.tolist()}")
-    return arr
-
-
 class IntentionAwareGuardian:
     """Supervises one ego vehicle; ``step(x, u)`` returns the input to apply and a record."""
 
@@ -86,7 +78,7 @@ class IntentionAwareGuardian:
 
         Call ``commit(x, applied)`` once the input to apply is known (``step`` does both).
         """
-        x = _finite_vector(x, 4, "state")
+        x = finite_vector(x, 4, "state")
         self.library.models[AGNOSTIC].system.piece_index(x)  # raises before any state changes
         if self._last is not None:
             self.estimator.update(self._last[0], self._last[1], x)
@@ -99,7 +91,7 @@ class IntentionAwareGuardian:
         self.t += 1
 
     def step(self, x, u_driver) -> tuple[np.ndarray, GuardianRecord]:
-        u = _finite_vector(u_driver, 2, "driver input")
+        u = finite_vector(u_driver, 2, "driver input")
         view = self.observe(x)
         x = view.x
         query = view.query

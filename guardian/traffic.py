@@ -21,7 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from itha.car_following import CarFollowingParams, MaximalSet
-from itha.highway import LEFT, RIGHT, EgoSupervisor, HighwayParams, intersect_intervals
+from itha.highway import LEFT, RIGHT, EgoSupervisor, HighwayParams
+from rcis.intervals import intersect_intervals
 
 
 @dataclass(frozen=True)

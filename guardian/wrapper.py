@@ -66,8 +66,7 @@ from guardian.monitor import ModelMonitor
 from guardian.supervisor import FAILSAFE_INPUT, IntentionAwareGuardian
 from guardian.traffic import Car, Scene, TrafficSupervisor
 from itha.car_following import CarFollowingParams
-from itha.highway import intersect_intervals
-from rcis.admissible import nearest_in_intervals
+from rcis.intervals import intersect_intervals, nearest_in_intervals
 
 LANE_CHANGES = ("LANE_LEFT", "LANE_RIGHT")
 ACTION_TYPES = ("ContinuousAction", "DiscreteMetaAction")

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 import highspy
 import numpy as np
 
+from rcis.validate import finite_vector
+
 
 INF = highspy.kHighsInf
 OBSERVATION_TOL = 1e-9  # equality slack for rounding in the observed states
@@ -121,10 +123,8 @@ class IntentionEstimator:
 
     def update(self, x, u_e, x_next) -> EstimatorUpdate:
         """Add the transition ``(x(t), u_e(t)) -> x(t+1)`` and re-solve LP_i for the valid i."""
-        x, u_e, x_next = (np.asarray(v, dtype=float) for v in (x, u_e, x_next))
-        for name, v in (("x", x), ("u_e", u_e), ("x_next", x_next)):
-            if not np.all(np.isfinite(v)):
-                raise ValueError(f"estimator update: {name} has a non-finite entry {v.tolist()}")
+        x, u_e, x_next = (finite_vector(v, None, f"estimator update: {name}")
+                          for v, name in ((x, "x"), (u_e, "u_e"), (x_next, "x_next")))
         slot = self.steps % self.horizon
         self.steps += 1
         invalidated = []

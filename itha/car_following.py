@@ -43,6 +43,7 @@ from rcis.invariant import outside_in
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PWAPiece, PWASystem
 from rcis.region import Region
+from rcis.intervals import merge_intervals
 
 H_TIGHTEN = 1e-6   # the polyhedral set keeps h >= h_min + this (rounding is ~1e-12)
 INNER = 1e-9       # input and speed intervals aim this far inside the set, membership tests allow
@@ -218,7 +219,7 @@ class PolyhedralSet:
         if np.isposinf(point[1]):
             return [(0.0, vmax)]
         out = []
-        for lo, hi in _merge_intervals(self.region.line_intervals(np.asarray(point, float), axis, tol=INNER)):
+        for lo, hi in merge_intervals(self.region.line_intervals(np.asarray(point, float), axis, tol=INNER)):
             lo = 0.0 if lo <= 0.0 else lo + AXIS_SHRINK
             hi = vmax if hi >= vmax else hi - AXIS_SHRINK
             if lo <= hi:
@@ -247,16 +248,6 @@ def speeds_to_inputs(p: CarFollowingParams, v: float, speeds) -> list[tuple[floa
             b = math.nextafter(b, -math.inf)
         if a <= b:
             out.append((a, b))
-    return out
-
-
-def _merge_intervals(iv):
-    out = []
-    for lo, hi in sorted(iv):
-        if out and lo <= out[-1][1] + 1e-12:
-            out[-1] = (out[-1][0], max(out[-1][1], hi))
-        else:
-            out.append((lo, hi))
     return out
 
 

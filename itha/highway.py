@@ -44,6 +44,7 @@ import numpy as np
 
 from itha.car_following import CarFollowingParams, admissible_inputs, speeds_to_inputs
 from itha.idm import idm_acceleration as idm
+from rcis.intervals import intersect_intervals
 
 STAY, LEFT, RIGHT = "stay", "left", "right"
 LANE_SHIFT = {STAY: 0, LEFT: 1, RIGHT: -1}
@@ -155,16 +156,6 @@ def example8_order(p, lane) -> list[int]:
 
 
 # ---- the ego's responsibility-sensitive input sets -----------------------------------
-def intersect_intervals(a, b):
-    out = []
-    for lo1, hi1 in a:
-        for lo2, hi2 in b:
-            lo, hi = max(lo1, lo2), min(hi1, hi2)
-            if lo <= hi:
-                out.append((lo, hi))
-    return out
-
-
 @dataclass
 class ChoiceVerdict:
     """What one triggering choice allows and why."""

@@ -24,6 +24,7 @@ from rcis import _kernels
 from rcis.pwa import RUNTIME_MARGIN, PWASystem
 from rcis.region import Region
 from rcis.tolerances import BOUNDS_ROUNDING  # noqa: F401 (re-exported)
+from rcis.intervals import nearest_in_intervals
 
 
 
@@ -226,15 +227,6 @@ def _line_interval(P: np.ndarray, fixed_axis: int, value: float):
     if not pts:
         return None
     return (float(min(pts)), float(max(pts)))
-
-
-def nearest_in_intervals(ranges, value: float) -> float:
-    best = None
-    for lo, hi in ranges:
-        cand = min(max(value, lo), hi)
-        if best is None or abs(cand - value) < abs(best - value):
-            best = cand
-    return best
 
 
 def _nearest_on_polygon(P: np.ndarray, u: np.ndarray) -> np.ndarray:
