@@ -20,12 +20,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 from scipy.optimize import lsq_linear
 
 from intention.params import OvertakeParams
 
 LEFT_CENTRE, RIGHT_CENTRE = 1.8, 0.0
+
+
+@runtime_checkable
+class Driver(Protocol):
+    """A driver of the overtake scenario: ``reset(rng)`` per episode, ``act(x)`` the input ``(a_ex, v_ey)``."""
+
+    def reset(self, rng=None) -> None: ...
+
+    def act(self, x) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,6 @@
 """Supervised rollouts of the overtake scenario (Section 6.5.3)."""
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
@@ -15,8 +14,10 @@ from intention.estimator import IntentionEstimator
 
 def overtake_rollouts(library, intention: str, driver: str, episodes: int, seed: int,
                       guardian: bool = True, use_intention: bool = True, disturbance: str = "random",
-                      max_steps: int = 300, horizon: int = 10, rerun_path=None, progress: bool = True) -> dict:
+                      max_steps: int = 300, horizon: int = 10, rerun_path=None, progress=None) -> dict:
     """Run ``episodes`` seeded episodes; episode i uses seed ``seed + i`` for the env and the driver.
+
+    ``progress(done, total)`` is called after each episode (as ``highway_rollouts`` does).
 
     Initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). The estimator
     statistics come from the guardian's estimator, or from a passive one when the guardian
@@ -66,9 +67,8 @@ def overtake_rollouts(library, intention: str, driver: str, episodes: int, seed:
             if estimator.identified_at is not None:
                 totals["identify_steps"].append(estimator.identified_at)
                 totals["wrong_identifications"] += int(estimator.valid != [intention])
-            if progress and ((ep + 1) % max(1, episodes // 10) == 0 or ep + 1 == episodes):
-                print(f"[rollout {intention}/{driver}] {ep + 1}/{episodes} episodes, "
-                      f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+            if progress:
+                progress(ep + 1, episodes)
     finally:  # the .rrd is closed on every exit
         if recorder:
             recorder.close()

@@ -17,6 +17,7 @@ model): the record says ``in_invariant_set=False`` and the guardian applies
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -49,6 +50,15 @@ class GuardianRecord:
         if not polygons:
             d.pop("admissible")
         return d
+
+
+@runtime_checkable
+class Supervisor(Protocol):
+    """A supervisor: ``step(x, u)`` returns the input to apply (inside the input bounds) and its record."""
+
+    def reset(self) -> None: ...
+
+    def step(self, x, u_driver) -> tuple[np.ndarray, "GuardianRecord"]: ...
 
 
 class IntentionAwareGuardian:

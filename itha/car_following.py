@@ -34,6 +34,7 @@ Two representations of the same set, checked against each other in the tests:
 from __future__ import annotations
 
 import math
+from typing import Protocol, runtime_checkable
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -134,6 +135,26 @@ def _boundary(low_side, top: float) -> tuple[float, float]:
         mid = (lo + hi) / 2
         lo, hi = (mid, hi) if low_side(mid) else (lo, mid)
     return lo, hi
+
+
+@runtime_checkable
+class CarFollowingSet(Protocol):
+    """What ITHA asks of a car-following RCIS (7.3): the closed form and the computed set both answer it.
+
+    ``contains`` tests states ``(v, h, v_L)`` (rows); the interval methods give, at the other coordinates
+    fixed, the ego speeds, lead speeds and ego inputs that keep the state in the set, as unions of intervals.
+    """
+
+    kind: str
+    params: CarFollowingParams
+
+    def contains(self, X) -> np.ndarray: ...
+
+    def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]: ...
+
+    def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]: ...
+
+    def input_intervals(self, v: float, h_next: float, vL_next: float) -> list[tuple[float, float]]: ...
 
 
 class MaximalSet:

@@ -51,13 +51,13 @@ def test_supervised_random_driver_never_leaves_the_invariant_set(library, intent
 
 
 def test_without_the_guardian_the_bad_driver_crashes(library):
-    r = overtake_rollouts(library, "cautious", "bad", 6, seed=0, guardian=False, progress=False)
+    r = overtake_rollouts(library, "cautious", "bad", 6, seed=0, guardian=False)
     assert r["safety_violations"] >= 4
 
 
 def test_intention_awareness_overrides_less_on_the_same_seeds(library):
-    aware = overtake_rollouts(library, "cautious", "mpc", 5, seed=3, progress=False)
-    pinned = overtake_rollouts(library, "cautious", "mpc", 5, seed=3, use_intention=False, progress=False)
+    aware = overtake_rollouts(library, "cautious", "mpc", 5, seed=3)
+    pinned = overtake_rollouts(library, "cautious", "mpc", 5, seed=3, use_intention=False)
     assert aware["safety_violations"] == pinned["safety_violations"] == 0
     assert aware["override_steps"] < pinned["override_steps"]
     assert aware["identified_fraction"] == 1.0 and aware["wrong_identifications"] == 0
@@ -96,7 +96,7 @@ def test_rerun_recording_has_the_scene_and_the_overrides(library, tmp_path):
     from guardian.rerun_log import read_entities, read_texts
 
     path = tmp_path / "run.rrd"
-    r = overtake_rollouts(library, "cautious", "bad", 2, seed=0, max_steps=80, rerun_path=path, progress=False)
+    r = overtake_rollouts(library, "cautious", "bad", 2, seed=0, max_steps=80, rerun_path=path)
     counts = read_entities(path)
     for entity in ("/road/lanes", "/road/ego", "/road/lead", "/inputs/proposed/throttle",
                    "/inputs/applied/steering", "/admissible/throttle/low", "/intention/valid_count"):

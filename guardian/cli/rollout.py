@@ -91,7 +91,8 @@ def cmd_rollout(args) -> int:
     runs = [overtake_rollouts(lib, i, d, args.episodes, args.seed, guardian=not args.no_guardian,
                               use_intention=not args.no_intention, disturbance=args.disturbance,
                               max_steps=args.max_steps, horizon=args.horizon,
-                              rerun_path=args.rerun if len(intentions) * len(drivers) == 1 else None)
+                              rerun_path=args.rerun if len(intentions) * len(drivers) == 1 else None,
+                              progress=progress_bar(f"rollout {i}/{d}"))
             for i in intentions for d in drivers]
     result = runs[0] if len(runs) == 1 else combine_runs(runs)
     text = "\n".join(f"{r['intention']:10s} {r['driver']:8s} episodes={r['episodes']} steps={r['steps']} "
