@@ -204,10 +204,17 @@ class Polyhedron:
 
     # ---- redundancy and projection -----------------------------------
     def minimal(self) -> "Polyhedron":
-        """Remove redundant rows (duplicates, box-implied rows, then one LP per row)."""
+        """Remove redundant rows: duplicates, box-implied rows, a dual-hull pre-filter, then one LP per row.
+
+        The pre-filter (``_dual_hull_filter``) drops rows whose dual points are not hull vertices, each
+        one confirmed by an LP over the kept rows only, so the ``REDUNDANCY_TOL`` guarantee stands.
+        """
         A, b = _dedupe(self.A, self.b)
         keep = _not_implied_by_axis_bounds(A, b)
         A, b = A[keep], b[keep]
+        filtered = _dual_hull_filter(A, b)
+        if filtered is not None:
+            A, b = filtered
         m = A.shape[0]
         if m <= 1:
             return Polyhedron(A, b)
@@ -422,6 +429,37 @@ def _dedupe(A: np.ndarray, b: np.ndarray):
     first = np.ones(A.shape[0], dtype=bool)
     first[1:] = np.any(key[1:] != key[:-1], axis=1)
     return A[first], b[first]
+
+
+def _dual_hull_filter(A: np.ndarray, b: np.ndarray):
+    """Rows that may be facets, found without one LP per row; None when the filter does not apply.
+
+    With c strictly inside P (its Chebyshev centre), P - c = {y : p_i^T y <= 1} for the dual points
+    ``p_i = a_i / (b_i - a_i^T c)``; a row can be a facet only if ``p_i`` is a vertex of their hull.
+    Every other row is dropped only after an LP over the kept rows proves it implied (to
+    ``REDUNDANCY_TOL``), so a wrong hull can cost speed, never the set.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    m, n = A.shape
+    if m < 4 * n + 4:
+        return None
+    ball = Polyhedron(A, b).chebyshev_ball()
+    if ball.center is None or not 1e-6 < ball.radius < CHEBYSHEV_CAP / 2:
+        return None
+    slack = b - A @ ball.center
+    try:
+        hull = ConvexHull(A / slack[:, None])
+    except (QhullError, ValueError):
+        return None
+    kept = np.zeros(m, dtype=bool)
+    kept[hull.vertices] = True
+    lp = InequalityLP(A[kept], b[kept])
+    for i in np.flatnonzero(~kept):
+        res = lp.maximize(A[i])
+        if res.status != "optimal" or res.value > b[i] + REDUNDANCY_TOL:
+            return None  # the hull missed a facet (rounding): the full LP pass decides
+    return A[kept], b[kept]
 
 
 def _not_implied_by_axis_bounds(A: np.ndarray, b: np.ndarray) -> np.ndarray:
