@@ -101,6 +101,28 @@ class IntentionAwareGuardian:
         self.t += 1
 
     def step(self, x, u_driver) -> tuple[np.ndarray, GuardianRecord]:
+        """Supervise one step (Theorem 4).
+
+        Parameters
+        ----------
+        x : array of 4 floats
+            The state ``(v_ex, y_e, h, v_Lx)``.
+        u_driver : array of 2 floats
+            The driver's input ``(a_ex, v_ey)``.
+
+        Returns
+        -------
+        applied : ndarray
+            The driver's input if admissible, else the nearest admissible one by priority, else
+            ``FAILSAFE_INPUT``; always inside ``U_e``.
+        record : GuardianRecord
+            What happened and why.
+
+        Raises
+        ------
+        ValueError
+            For a wrong shape, a non-finite entry, or a state in no piece of the model.
+        """
         u = finite_vector(u_driver, 2, "driver input")
         view = self.observe(x)
         x = view.x

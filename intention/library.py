@@ -118,7 +118,28 @@ def _compute(name: str, params: OvertakeParams, settings: LibrarySettings, seed:
 def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySettings = LibrarySettings(),
                   cache_dir: Path | None = None, use_cache: bool = True, workers: int = 2,
                   quiet: bool = False) -> OvertakeLibrary:
-    """Load every set from the cache or compute it (intentions in parallel)."""
+    """Load every set of the overtake library from the cache, or compute it (Section 6.4.1).
+
+    Parameters
+    ----------
+    params : OvertakeParams
+        The scenario (Table 6.1 by default); every field is part of the cache key.
+    settings : LibrarySettings
+        Iteration counts, merging and the coverage budget; also part of the key.
+    cache_dir : path, optional
+        Default ``$GUARDIAN_CACHE_DIR`` or ``~/.cache/guardian``.
+    use_cache : bool
+        False recomputes every set and replaces the entries.
+    workers : int
+        Processes for ``C_a`` and ``C_c`` (computed in parallel when 2).
+    quiet : bool
+        No per-iteration progress on stderr.
+
+    Returns
+    -------
+    OvertakeLibrary
+        ``C_bnd``, ``C_a``, ``C_c`` with their models and supervisors ``S_I(x)``.
+    """
     cache = RegionCache(cache_dir, use_cache=use_cache)
     models = intention_models(params)
     sets: dict[str, InvariantSet] = {}

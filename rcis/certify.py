@@ -104,7 +104,32 @@ def _candidate_inputs(polygons, rng, count: int):
 def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
             window: Polyhedron | None = None, inputs_per_state: int = 3,
             admissible: AdmissibleInputs | None = None, progress=None) -> FalsifierReport:
-    """Search for states of ``invariant`` that are not robustly controlled invariant."""
+    """Search for states of ``invariant`` that are not robustly controlled invariant.
+
+    Parameters
+    ----------
+    system : PWASystem
+        The dynamics the set was computed for.
+    invariant : Region
+        The candidate RCIS.
+    samples : int
+        States drawn (interior, boundary and vertices of the pieces, inside ``window``).
+    seed : int
+        Random seed.
+    window : Polyhedron, optional
+        Where states are drawn (sets unbounded in some coordinate need one).
+    inputs_per_state : int
+        Admissible inputs tried per state, each against every vertex of the disturbance set.
+    admissible : AdmissibleInputs, optional
+        ``S(x)`` of the set (built when not given).
+    progress : callable, optional
+        ``progress(done, total)``.
+
+    Returns
+    -------
+    FalsifierReport
+        The counterexamples (a state, an input and a disturbance whose successor leaves the set), and counts.
+    """
     rng = np.random.default_rng(seed)
     adm = admissible or AdmissibleInputs(system, invariant)
     if window is None:

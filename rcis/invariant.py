@@ -80,7 +80,26 @@ def _without_contained(old, new):
 def inside_out(system: PWASystem, seed: Region, safe: Region, max_iterations: int = 50,
                merge: bool = True, progress: Progress | None = None,
                eps: float = SLIVER_EPS, cover_budget: int = COVER_BUDGET) -> InvariantResult:
-    """Grow the seed RCIS by robust Pre inside the safe set until nothing new appears."""
+    """Grow the seed RCIS by robust Pre inside the safe set until nothing new appears (inside-out, 2.11).
+
+    Parameters
+    ----------
+    system : PWASystem
+        The dynamics ``x+ = A_j x + B_j u + c_j + E_j w``.
+    seed : Region
+        An RCIS to start from (every iterate contains it, so every iterate is an RCIS).
+    safe : Region
+        The safe set; every iterate stays inside it.
+    max_iterations : int
+        Stop after this many iterations even if new pieces still appear.
+    merge, progress, eps, cover_budget
+        Convex merging of pieces, a per-iteration callback, the sliver size, and the coverage search budget.
+
+    Returns
+    -------
+    InvariantResult
+        The region, the iterations run, whether nothing new appeared (converged), seconds, per-iteration history.
+    """
     t0 = time.perf_counter()
     pieces = list(seed.pieces)
     frontier = list(seed.pieces)
