@@ -55,10 +55,16 @@ def combine_runs(runs: list) -> dict:
 
 
 def intention_name(text: str) -> str:
-    names = {"aggressive": "aggressive", "cautious": "cautious", "all": "all", "C_a": "aggressive", "C_c": "cautious"}
-    if text not in names:
-        raise argparse.ArgumentTypeError(f"--intention must be one of {', '.join(names)}, got {text!r}")
-    return names[text]
+    """``all``, or an intention set by either name (``C_a``/``aggressive``, ``C_c``/``cautious``)."""
+    from intention.library import set_name
+
+    try:
+        name = "all" if text == "all" else set_name(text)
+    except ValueError:
+        name = None
+    if name not in ("aggressive", "cautious", "all"):
+        raise argparse.ArgumentTypeError(f"--intention must be aggressive, cautious, C_a, C_c or all, got {text!r}")
+    return name
 
 
 def ego_speed_min(text: str) -> float:
