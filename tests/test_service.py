@@ -51,6 +51,15 @@ def test_session_lifecycle(service, library):
     raw.close()
 
 
+def test_bodies_are_json_whatever_the_content_type_says(service):
+    """``curl -d`` sends application/x-www-form-urlencoded; the body is still the JSON it is."""
+    form = {"content-type": "application/x-www-form-urlencoded"}
+    status, _, s = call(service.address, "POST", "/sessions", {"use_intention": False, "horizon": 4}, form)
+    assert status == 201 and s["use_intention"] is False and s["horizon"] == 4
+    assert call(service.address, "POST", f"/sessions/{s['session']}/step", GOOD_STEP, form)[0] == 200
+    assert call(service.address, "PATCH", "/health", None)[0] == 405
+
+
 def test_session_settings_are_honoured_and_checked(service):
     sid = new_session(service.address, {"use_intention": False, "horizon": 3, "priority": ["steering", "throttle"]})
     _, _, s = call(service.address, "GET", f"/sessions/{sid}")

@@ -27,7 +27,7 @@ import json
 import logging
 from typing import Annotated, Literal
 
-from fastapi import Body, FastAPI, Request, WebSocket
+from fastapi import FastAPI, Request, WebSocket
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, ValidationError, field_validator
@@ -66,14 +66,16 @@ class StepRequest(BaseModel):
     input: tuple[Finite, Finite]
 
 
-def _body_schema(model) -> dict:
-    return {"requestBody": {"required": True, "content": {"application/json": {
+def _body_schema(model, required: bool = True) -> dict:
+    return {"requestBody": {"required": required, "content": {"application/json": {
         "schema": model.model_json_schema()}}}}
 
 
-def _step_request(raw: bytes) -> StepRequest:
+def _parse_body(model, raw: bytes):
+    """``raw`` validated as ``model`` by pydantic's own JSON parser, whatever the Content-Type says
+    (``curl -d`` sends form-encoded); errors become 400 (not JSON) or 422 (not the schema)."""
     try:
-        return StepRequest.model_validate_json(raw)
+        return model.model_validate_json(raw)
     except ValidationError as exc:
         errors = exc.errors()
         if any(e.get("type") == "json_invalid" for e in errors):
@@ -142,16 +144,14 @@ def create_app(library, store: SessionStore | None = None, limits: Limits = Limi
     async def list_sessions():
         return json_response(200, {"sessions": store.listing()})
 
-    @app.post("/sessions", status_code=201)
-    async def create_session(settings: Annotated[SessionSettings | None, Body()] = None):
-        s = settings or SessionSettings()
+    @app.post("/sessions", status_code=201, openapi_extra=_body_schema(SessionSettings, required=False))
+    async def create_session(request: Request):
+        s = _parse_body(SessionSettings, await request.body() or b"{}")
         return json_response(201, store.create(s.use_intention, s.horizon, s.priority))
 
     @app.post("/sessions/{sid}/step", openapi_extra=_body_schema(StepRequest))
     async def step(sid: str, request: Request):
-        # Validated here by pydantic's own JSON parser: the control loop's hot path skips
-        # FastAPI's generic body handling (half the request's cost).
-        req = _step_request(await request.body())
+        req = _parse_body(StepRequest, await request.body())  # half the cost of FastAPI's body handling
         return json_response(200, store.step(sid, req.state, req.input))
 
     @app.get("/sessions/{sid}")
@@ -185,7 +185,7 @@ def _stream_reply(store: SessionStore, sid: str, raw: bytes, limits: Limits) -> 
     if problem:
         return {"error": problem, "status": 400}, False
     try:
-        req = _step_request(raw)
+        req = _parse_body(StepRequest, raw)
         return store.step(sid, req.state, req.input), False
     except ServiceError as exc:
         return {**exc.body(), "status": exc.status}, exc.status in (404, 410)
@@ -309,7 +309,7 @@ class Gate:
         chunked = b"transfer-encoding" in headers
         if length is not None and int(length) > self.limits.max_body:  # the parser validated the digits
             raise ServiceError(413, f"body of {int(length)} bytes exceeds {self.limits.max_body}")
-        if scope["method"] in ("POST", "PUT", "PATCH") and length is None and not chunked:
+        if scope["method"] == "POST" and length is None and not chunked:
             raise ServiceError(411, "a POST needs Content-Length or chunked Transfer-Encoding "
                                     "(send Content-Length: 0 for an empty body)")
         body = bytearray()
