@@ -34,7 +34,7 @@ class InequalityLP:
     which is what redundancy removal and support-function queries need.
     """
 
-    def __init__(self, A: np.ndarray, b: np.ndarray, lower=None, upper=None):
+    def __init__(self, A: np.ndarray, b: np.ndarray, lower=None, upper=None, feasibility_tol: float | None = None):
         A = np.ascontiguousarray(A, dtype=float)
         b = np.asarray(b, dtype=float)
         m, n = A.shape
@@ -43,6 +43,9 @@ class InequalityLP:
         self._h = highspy.Highs()
         self._h.setOptionValue("output_flag", False)
         self._h.setOptionValue("presolve", "off")
+        if feasibility_tol is not None:  # HiGHS' default is 1e-7 on the scaled model
+            self._h.setOptionValue("primal_feasibility_tolerance", feasibility_tol)
+            self._h.setOptionValue("dual_feasibility_tolerance", feasibility_tol)
         lp = highspy.HighsLp()
         lp.num_col_ = n
         lp.num_row_ = m

@@ -214,7 +214,7 @@ class Polyhedron:
         A, b = A[keep], b[keep]
         filtered = _dual_hull_filter(A, b)
         if filtered is not None:
-            A, b = filtered
+            return Polyhedron(*filtered)
         m = A.shape[0]
         if m <= 1:
             return Polyhedron(A, b)
@@ -361,7 +361,7 @@ def _complete_vertices(P: "Polyhedron", V: np.ndarray, max_rounds: int = 64,
     V = V[P.contains(V, tol=GENERATOR_TOL)] if V.size else V
     if V.shape[0] == 0:  # nothing usable from cddlib: start from the maximisers along the axes
         eye = np.eye(P.dim)
-        V = np.array([lp.maximize(d).x for d in np.vstack([eye, -eye])])
+        V = np.array([_polished_vertex(P, lp.maximize(d).x, d) for d in np.vstack([eye, -eye])])
     scale = max(1.0, float(np.abs(V).max()))
     for _ in range(max_rounds):
         V = _merge_close(V, 1e-9 * scale)  # near-duplicates (degenerate vertices) would blow the hull up
@@ -372,11 +372,39 @@ def _complete_vertices(P: "Polyhedron", V: np.ndarray, max_rounds: int = 64,
         for normal, offset in zip(N, d):
             res = lp.maximize(normal)
             if res.value > offset + GENERATOR_TOL * max(1.0, abs(offset)):
-                missing.append(res.x)
+                missing.append(_polished_vertex(P, res.x, normal))
         if not missing:
             return _hull_vertices(V)
         V = np.unique(np.vstack([V, missing]), axis=0)
     raise ArithmeticError(f"vertex enumeration did not close after {max_rounds} repair rounds")
+
+
+def _polished_vertex(P: "Polyhedron", x: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """A point of P (to ``GENERATOR_TOL``) at the LP maximiser ``x`` of ``direction``.
+
+    HiGHS' maximiser may violate a row by its feasibility tolerance, which is relative to the scaled
+    model (3.6e-6 on one shipped piece with nearly parallel rows); a vertex must lie in P. In order:
+    ``x`` itself; the solution of the n linearly independent rows with the smallest slack at ``x``;
+    the maximiser re-solved with 1e-9 feasibility tolerances; else this raises.
+    """
+    if P.contains(x, tol=GENERATOR_TOL):
+        return x
+    slack = np.abs(P.b - P.A @ x)
+    rows: list[int] = []
+    for i in np.argsort(slack, kind="stable"):
+        if np.linalg.matrix_rank(P.A[rows + [int(i)]], tol=1e-9) == len(rows) + 1:
+            rows.append(int(i))
+            if len(rows) == P.dim:
+                break
+    if len(rows) == P.dim:
+        v = np.linalg.solve(P.A[rows], P.b[rows])
+        if P.contains(v, tol=GENERATOR_TOL) and np.abs(v - x).max() <= 1e-3 * max(1.0, float(np.abs(x).max())):
+            return v
+    res = InequalityLP(P.A, P.b, feasibility_tol=1e-9).maximize(direction)
+    if res.status == "optimal" and P.contains(res.x, tol=GENERATOR_TOL):
+        return res.x
+    raise ArithmeticError(f"an LP maximiser lies outside the polyhedron by {float((P.A @ x - P.b).max())!r}, "
+                          "and neither its active rows nor a tighter LP give a point inside")
 
 
 def _hull_vertices(V: np.ndarray) -> np.ndarray:
@@ -431,18 +459,23 @@ def _dedupe(A: np.ndarray, b: np.ndarray):
     return A[first], b[first]
 
 
-def _dual_hull_filter(A: np.ndarray, b: np.ndarray):
-    """Rows that may be facets, found without one LP per row; None when the filter does not apply.
+_CERTIFICATE_TRIES = 16  # coplanar simplices tried per dropped row before an LP decides
 
-    With c strictly inside P (its Chebyshev centre), P - c = {y : p_i^T y <= 1} for the dual points
-    ``p_i = a_i / (b_i - a_i^T c)``; a row can be a facet only if ``p_i`` is a vertex of their hull.
-    Every other row is dropped only after an LP over the kept rows proves it implied (to
-    ``REDUNDANCY_TOL``), so a wrong hull can cost speed, never the set.
+
+def _dual_hull_filter(A: np.ndarray, b: np.ndarray):
+    """The facets of a bounded full-dimensional P, found from one hull; None when it does not apply.
+
+    With c strictly inside a bounded P (its Chebyshev centre), ``P - c = {y : p_i^T y <= 1}`` for the
+    dual points ``p_i = a_i / (b_i - a_i^T c)``, and row i is a facet iff ``p_i`` is a vertex of
+    ``conv{p_j}``. Every other row is dropped only with a certificate that it is implied to
+    ``REDUNDANCY_TOL`` by the kept rows (``_implied_by_hull``, an LP where that fails), so a wrong
+    hull can cost speed, never the set. Kept rows are hull vertices: facets, up to rounding, and a
+    nearly redundant row kept changes nothing but the row count.
     """
     from scipy.spatial import ConvexHull, QhullError
 
     m, n = A.shape
-    if m < 4 * n + 4:
+    if n < 2 or m < 2 * n + 2:
         return None
     ball = Polyhedron(A, b).chebyshev_ball()
     if ball.center is None or not 1e-6 < ball.radius < CHEBYSHEV_CAP / 2:
@@ -452,14 +485,87 @@ def _dual_hull_filter(A: np.ndarray, b: np.ndarray):
         hull = ConvexHull(A / slack[:, None])
     except (QhullError, ValueError):
         return None
+    if not np.all(hull.equations[:, -1] < -1e-12):
+        return None  # the origin is not inside the dual hull: P is unbounded
     kept = np.zeros(m, dtype=bool)
     kept[hull.vertices] = True
+    dropped = np.flatnonzero(~kept)
+    if dropped.size == 0:
+        return A, b
+    proven = _implied_by_hull(A, b, slack, ball.center, hull, dropped, kept)
     lp = InequalityLP(A[kept], b[kept])
-    for i in np.flatnonzero(~kept):
+    for i in dropped[~proven]:
         res = lp.maximize(A[i])
         if res.status != "optimal" or res.value > b[i] + REDUNDANCY_TOL:
             return None  # the hull missed a facet (rounding): the full LP pass decides
     return A[kept], b[kept]
+
+
+def _implied_by_hull(A, b, slack, c, hull, dropped, kept) -> np.ndarray:
+    """Which dropped rows carry a Farkas certificate from the hull of the dual points.
+
+    The ray from the origin through an interior dual point ``p_i`` leaves the hull through a simplex
+    ``S`` at ``t_i p_i`` (``t_i >= 1``), so ``p_i = sum_j lambda_j p_j`` over ``j in S`` with
+    ``lambda >= 0`` and ``sum lambda = 1/t_i <= 1``. In the original rows this is
+    ``a_i = sum_j nu_j a_j + r`` with ``nu_j = slack_i lambda_j / slack_j >= 0``, hence for every x in
+    the kept rows' polyhedron ``a_i^T x <= sum_j nu_j b_j + r^T c + |r|_1 max|x - c|_inf``; the row is
+    proven implied when that bound is at most ``b_i + REDUNDANCY_TOL``. Everything is evaluated on
+    the data, not on the hull's facet equations, so an inexact hull cannot fake a certificate.
+    Coplanar simplices (qhull triangulates non-simplicial facets) tie on ``t``; the nearest few are
+    tried in order.
+    """
+    n = A.shape[1]
+    points = A / slack[:, None]
+    normals, offsets = hull.equations[:, :n], hull.equations[:, n]
+    reach = points[dropped] @ normals.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(reach > 0, -offsets / reach, np.inf)
+    order = np.argsort(t, axis=1)[:, :_CERTIFICATE_TRIES]
+    reach_box = None
+    proven = np.zeros(len(dropped), dtype=bool)
+    for rank in range(order.shape[1]):
+        rows = np.flatnonzero(~proven)
+        if rows.size == 0:
+            break
+        facet = order[rows, rank]
+        t_exit = t[rows, facet]
+        simplex = hull.simplices[facet]
+        live = np.isfinite(t_exit) & (t_exit >= 1.0 - 1e-9) & np.all(kept[simplex], axis=1)
+        if not np.any(live):
+            break
+        rows, t_exit, simplex = rows[live], t_exit[live], simplex[live]
+        if reach_box is None:
+            reach_box = _kept_radius(A[kept], b[kept], c)
+        proven[rows] = _certified(A, b, points, slack, c, dropped[rows], simplex, t_exit, reach_box)
+    return proven
+
+
+def _certified(A, b, points, slack, c, rows, simplex, t_exit, reach_box) -> np.ndarray:
+    """The certificate test of ``_implied_by_hull`` for rows ``rows`` against their simplices."""
+    M = np.transpose(points[simplex], (0, 2, 1))
+    det = np.linalg.det(M)
+    usable = np.isfinite(det) & (np.abs(det) > 1e-300)
+    M[~usable] = np.eye(M.shape[1])
+    mu = np.linalg.solve(M, (t_exit[:, None] * points[rows])[..., None])[..., 0]
+    usable &= np.all(mu >= -1e-9, axis=1)
+    lam = np.maximum(mu, 0.0) / t_exit[:, None]
+    nu = slack[rows][:, None] * lam / slack[simplex]
+    residual = A[rows] - np.einsum("kj,kjn->kn", nu, A[simplex])
+    with np.errstate(invalid="ignore"):
+        bound = np.einsum("kj,kj->k", nu, b[simplex]) + residual @ c + np.abs(residual).sum(axis=1) * reach_box
+    return usable & (lam.sum(axis=1) <= 1.0 + 1e-9) & (bound <= b[rows] + REDUNDANCY_TOL)
+
+
+def _kept_radius(A: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+    """``max |x - c|_inf`` over ``A x <= b`` (2n LPs; inf when unbounded)."""
+    lp = InequalityLP(A, b)
+    reach = 0.0
+    for direction in np.vstack([np.eye(len(c)), -np.eye(len(c))]):
+        res = lp.maximize(direction)
+        if res.status != "optimal":
+            return np.inf
+        reach = max(reach, res.value - direction @ c)
+    return reach
 
 
 def _not_implied_by_axis_bounds(A: np.ndarray, b: np.ndarray) -> np.ndarray:

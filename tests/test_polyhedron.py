@@ -102,3 +102,76 @@ def test_engine_never_calls_cddlib_canonicalize():
         code = "\n".join(line.split("#")[0] for line in path.read_text().splitlines()
                          if not line.strip().startswith(("#", '"', "'")))
         assert "canonicalize(" not in code, path
+
+
+def _lp_minimal(P):
+    """The referee: one LP per row, nothing else."""
+    A, b = P.A, P.b
+    keep = np.ones(len(b), dtype=bool)
+    for i in range(len(b)):
+        others = InequalityLP(A[keep & (np.arange(len(b)) != i)], b[keep & (np.arange(len(b)) != i)])
+        res = others.maximize(A[i])
+        if res.status == "optimal" and res.value <= b[i] + 1e-9:
+            keep[i] = False
+    return Polyhedron(A[keep], b[keep])
+
+
+def _fm_rows(rng, n=4, m=24):
+    """Many weakly redundant rows, as Fourier-Motzkin makes them: the hull filter's home ground."""
+    A = rng.normal(size=(m, n + 1))
+    P = Polyhedron(A, np.abs(rng.normal(size=m)) + 0.5).intersect(
+        Polyhedron.from_box(-2 * np.ones(n + 1), 2 * np.ones(n + 1)))
+    from rcis.polyhedron import _fourier_motzkin
+    return _fourier_motzkin(P.A, P.b, n)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_minimal_by_hull_certificates_is_the_lp_answer(seed):
+    """Every row the dual-hull certificates drop is implied (the referee agrees on the set), and
+    every facet survives: the same set, with no more rows than the referee keeps."""
+    P = _fm_rows(np.random.default_rng(seed))
+    M, R = P.minimal(), _lp_minimal(P)
+    assert M.contains_polyhedron(R) and R.contains_polyhedron(M)
+    assert M.n_constraints <= R.n_constraints
+
+
+def test_a_wrong_hull_costs_speed_never_the_set(monkeypatch):
+    """A hull that misses a vertex (a facet of P) or lies about its facets cannot drop a facet."""
+    import scipy.spatial
+
+    import rcis.polyhedron as ph
+
+    real = scipy.spatial.ConvexHull
+    P = _fm_rows(np.random.default_rng(11))
+    truth = _lp_minimal(P)
+
+    class MissingVertex:
+        def __init__(self, points):
+            far = int(np.argmax(np.linalg.norm(points, axis=1)))
+            idx = np.delete(np.arange(len(points)), far)
+            h = real(points[idx])
+            self.vertices, self.simplices, self.equations = idx[h.vertices], idx[h.simplices], h.equations
+
+    class MissingVertexLyingFacets(MissingVertex):
+        def __init__(self, points):
+            super().__init__(points)
+            self.equations = self.equations.copy()
+            self.equations[:, -1] *= 3.0  # claims to reach the missing vertex: only the certificate can tell
+
+    for fake in (MissingVertex, MissingVertexLyingFacets):
+        monkeypatch.setattr(scipy.spatial, "ConvexHull", fake)
+        M = P.minimal()
+        assert M.contains_polyhedron(truth) and truth.contains_polyhedron(M), fake.__name__
+    monkeypatch.setattr(scipy.spatial, "ConvexHull", real)
+    assert ph._dual_hull_filter(P.A, P.b) is not None  # the real hull does apply here
+
+
+def test_an_lp_maximiser_outside_the_set_is_polished_into_it():
+    """HiGHS may return a maximiser outside P by its scaled feasibility tolerance; a vertex that
+    generators() returns must lie in P, so the maximiser is re-solved from its active rows."""
+    from rcis.polyhedron import GENERATOR_TOL, _polished_vertex
+
+    P = Polyhedron(np.vstack([np.eye(2), -np.eye(2), [[1.0, 1e-7]]]), np.array([1.0, 1.0, 1.0, 1.0, 1.0]))
+    for x in ([1 + 3e-6, 1.0], [1.0, 1 + 4e-6], [1 + 2e-6, -1 - 2e-6]):
+        v = _polished_vertex(P, np.array(x), np.array([1.0, np.sign(x[1])]))
+        assert P.contains(v, tol=GENERATOR_TOL) and np.abs(v - x).max() < 1e-5
