@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from envs.drivers import make_driver
+from envs.agents import make_agent
 from envs.overtake import OvertakeEnv
 from guardian.supervisor import IntentionAwareGuardian
 from intention.library import build_library
@@ -23,13 +23,12 @@ def guardian_step_times(lib, use_intention: bool, episodes: int = 20) -> np.ndar
     guard = IntentionAwareGuardian(lib, use_intention=use_intention)
     times = []
     for ep in range(episodes):
-        driver = make_driver("bad" if ep % 2 else "random")
-        driver.reset(np.random.default_rng(ep))
         obs, _ = env.reset(seed=ep)
+        driver = make_agent("bad" if ep % 2 else "random", env, np.random.default_rng(ep))
         guard.reset()
         done = False
         while not done:
-            u = driver.act(obs)
+            u = driver(obs)
             t = time.perf_counter()
             applied, _ = guard.step(obs, u)
             times.append(time.perf_counter() - t)

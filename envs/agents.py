@@ -1,31 +1,51 @@
-"""Agents that drive highway-env environments, for either action type, and the collision-fault rule.
+"""The one registry of agents: every driver of every environment, for either action type.
 
-Every agent is built as ``make_agent(name, env, rng)`` and called as
-``agent(obs) -> action`` in the environment's own action space:
+Every agent is built as ``make_agent(name, env, rng)`` and called as ``agent(obs) -> action`` in the
+environment's own action space: a highway-env ``DiscreteMetaAction`` or ``ContinuousAction``
+(normalised to ``[-1, 1]``), or a ``Box`` in physical units (``guardian/Overtake-v0``'s ``U_e``).
 
 * ``random``: uniform in the action space (meta: one of the five actions);
 * ``reckless``: meta: changes lanes whenever it can, alternating sides, else FASTER;
   continuous: full throttle, steering hard to one side then the other (2 s each);
 * ``idle``: IDLE, or zero acceleration and steering;
-* ``mpc``, ``bad``, ``careful`` (``HighwayOvertake-v0``, continuous only): the switched MPC
-  drivers of Section 6.5.3 (``envs.drivers``) on the overtake state, mapped to the action's
-  normalised range.
+* ``mpc``, ``bad``, ``careful``: the switched MPC drivers of Section 6.5.3 (``envs.mpc``) on the
+  overtake state (``guardian/Overtake-v0``, or ``guardian/HighwayOvertake-v0`` with continuous actions).
+
+``BASELINES`` are the four drivers of Section 6.5.3's experiment (``--driver all``).
 """
 from __future__ import annotations
 
+from typing import Protocol, runtime_checkable
+
 import numpy as np
 
-from envs.drivers import STYLES, MPCDriver
+from envs.mpc import STYLES, MPCDriver
 
-AGENTS = ("random", "reckless", "idle", "mpc", "bad", "careful")
+
+@runtime_checkable
+class Agent(Protocol):
+    """A driver: called once per step with the observation, returns an action of the env's space."""
+
+    def __call__(self, obs): ...
 
 
 def _kind(env) -> str:
-    return type(env.unwrapped.action_type).__name__
+    """``DiscreteMetaAction``, ``ContinuousAction`` (highway-env) or ``Box`` (physical units)."""
+    action_type = getattr(env.unwrapped, "action_type", None)
+    return type(action_type).__name__ if action_type is not None else "Box"
 
 
 def _meta_names(env) -> list:
     return list(env.unwrapped.action_type.actions.values())
+
+
+def _continuous(env, throttle: float, steer: float):
+    """An action at fractions ``throttle, steer`` in ``[-1, 1]`` of the env's continuous range."""
+    if _kind(env) == "ContinuousAction":
+        return np.array([throttle, steer], dtype=np.float32)
+    space = env.action_space
+    mid, half = (space.high + space.low) / 2, (space.high - space.low) / 2
+    return (mid + half * np.array([throttle, steer])).astype(space.dtype)
 
 
 class RandomAgent:
@@ -51,7 +71,7 @@ class RecklessAgent:
             pick = ("LANE_LEFT", "LANE_RIGHT", "FASTER")[self.t % 3] if self.rng.uniform() < 0.9 else "FASTER"
             return names.index(pick)
         side = 1.0 if (self.t // self.SWITCH_STEPS) % 2 == 0 else -1.0
-        return np.array([1.0, side], dtype=np.float32)
+        return _continuous(self.env, 1.0, side)
 
 
 class IdleAgent:
@@ -61,38 +81,66 @@ class IdleAgent:
     def __call__(self, obs):
         if self.kind == "DiscreteMetaAction":
             return _meta_names(self.env).index("IDLE")
-        return np.zeros(2, dtype=np.float32)
+        return np.clip(np.zeros(2), self.env.action_space.low, self.env.action_space.high).astype(
+            self.env.action_space.dtype)
 
 
 class MPCAgent:
-    """A switched MPC driver of ``envs.drivers`` acting through a ``ContinuousAction``."""
+    """A switched MPC driver of ``envs.mpc`` on the overtake state, in the env's continuous action."""
 
     def __init__(self, env, rng, style):
         base = env.unwrapped
-        if not hasattr(base, "overtake_state") or _kind(env) != "ContinuousAction":
-            raise ValueError("the MPC drivers drive guardian/HighwayOvertake-v0 with --action continuous")
+        self.kind = _kind(env)
+        overtake_env = self.kind == "Box" and hasattr(base, "params") and hasattr(base, "model")
+        highway_overtake = self.kind == "ContinuousAction" and hasattr(base, "overtake_state")
+        if not (overtake_env or highway_overtake):
+            raise ValueError("the MPC drivers drive guardian/Overtake-v0, or guardian/HighwayOvertake-v0 "
+                             "with --action continuous")
         self.base = base
         self.driver = MPCDriver(style, base.params)
         self.driver.reset()
-        at = base.action_type
-        self.ranges = (np.asarray(at.acceleration_range, float), np.asarray(at.steering_range, float))
+        if self.kind == "ContinuousAction":
+            at = base.action_type
+            self.ranges = (np.asarray(at.acceleration_range, float), np.asarray(at.steering_range, float))
 
     def __call__(self, obs):
+        if self.kind == "Box":
+            return self.driver.act(obs)
         u = self.driver.act(self.base.overtake_state())
         out = [2 * (u[k] - r[0]) / (r[1] - r[0]) - 1 for k, r in enumerate(self.ranges)]
         return np.clip(np.array(out, dtype=np.float32), -1.0, 1.0)
 
 
-def make_agent(name: str, env, rng: np.random.Generator):
-    if name == "random":
-        return RandomAgent(env, rng)
-    if name == "reckless":
-        return RecklessAgent(env, rng)
-    if name == "idle":
-        return IdleAgent(env, rng)
-    if name in STYLES:
-        return MPCAgent(env, rng, STYLES[name])
-    raise ValueError(f"unknown agent {name!r}; choose from {', '.join(AGENTS)}")
+def _mpc(style: str):
+    return lambda env, rng: MPCAgent(env, rng, STYLES[style])
+
+
+_FACTORIES = {"random": RandomAgent, "reckless": RecklessAgent, "idle": IdleAgent,
+              **{name: _mpc(name) for name in STYLES}}
+AGENTS = tuple(_FACTORIES)
+BASELINES = ("mpc", "bad", "careful", "random")
+
+
+def make_agent(name: str, env, rng: np.random.Generator) -> Agent:
+    """The agent ``name`` for ``env``.
+
+    Parameters
+    ----------
+    name : str
+        One of ``AGENTS``.
+    env : gymnasium.Env
+        The environment it drives (wrappers allowed); its action space decides the action's form.
+    rng : numpy.random.Generator
+        The agent's own randomness (the rollout seeds it per episode).
+
+    Returns
+    -------
+    Agent
+        A callable ``agent(obs) -> action``.
+    """
+    if name not in _FACTORIES:
+        raise ValueError(f"unknown agent {name!r}; choose from {', '.join(AGENTS)}")
+    return _FACTORIES[name](env, rng)
 
 
 def collision_fault(env, lateral_before: float | None = None, entered_responsibly=None) -> str | None:

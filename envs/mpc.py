@@ -1,4 +1,7 @@
-"""Drivers for overtake rollouts: the switched MPC baseline of Section 6.5.3 and variants.
+"""The switched MPC controller of Section 6.5.3 and its styles (``mpc``, ``bad``, ``careful``).
+
+A controller on the overtake state, in physical units; ``envs.agents`` wraps it as an agent of
+either environment (that is the one registry of drivers).
 
 The MPC driver switches between three modes, as the dissertation's baseline
 (tailgate for a while, overtake, return):
@@ -14,13 +17,11 @@ least-squares problem (solved exactly with scipy's BVLS). The longitudinal and
 lateral dynamics are decoupled, so this is the same QP as the joint one.
 
 ``bad`` tailgates at 4 m (inside ``h_min``) and returns 2 m ahead; ``careful``
-keeps 45 m and returns 35 m ahead; ``random`` draws inputs uniformly from U.
+keeps 45 m and returns 35 m ahead.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-from typing import Protocol, runtime_checkable
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -28,15 +29,6 @@ from scipy.optimize import lsq_linear
 from intention.params import OvertakeParams
 
 LEFT_CENTRE, RIGHT_CENTRE = 1.8, 0.0
-
-
-@runtime_checkable
-class Driver(Protocol):
-    """A driver of the overtake scenario: ``reset(rng)`` per episode, ``act(x)`` the input ``(a_ex, v_ey)``."""
-
-    def reset(self, rng=None) -> None: ...
-
-    def act(self, x) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -77,7 +69,7 @@ class MPCDriver:
         self._lat = _prediction(1.0, params.dt, horizon)
         self.reset()
 
-    def reset(self, rng=None) -> None:
+    def reset(self) -> None:
         self.mode = "tailgate"
         self.t = 0
 
@@ -88,6 +80,7 @@ class MPCDriver:
         return float(lsq_linear(A, b, bounds=bounds, method="bvls").x[0])
 
     def act(self, x) -> np.ndarray:
+        """The input ``(a_ex, v_ey)`` in ``U_e`` for the overtake state ``x = (v_ex, y_e, h, v_Lx)``."""
         v, y, h, vl = x
         s = self.style
         self.t += 1
@@ -105,30 +98,3 @@ class MPCDriver:
         a = self._track(self._long, v, np.full(self.H, v_ref), s.rho_long, self.p.a_ex_bounds)
         vy = self._track(self._lat, y, np.full(self.H, y_ref), s.rho_lat, self.p.v_ey_bounds)
         return np.array([a, vy])
-
-
-class RandomDriver:
-    """Uniformly random inputs in U_e."""
-
-    def __init__(self, params: OvertakeParams = OvertakeParams()):
-        self.p = params
-        self.rng = np.random.default_rng(0)
-
-    def reset(self, rng=None) -> None:
-        if rng is not None:
-            self.rng = rng
-
-    def act(self, x) -> np.ndarray:
-        return self.rng.uniform([self.p.a_ex_bounds[0], self.p.v_ey_bounds[0]],
-                                [self.p.a_ex_bounds[1], self.p.v_ey_bounds[1]])
-
-
-DRIVERS = ("mpc", "bad", "careful", "random")
-
-
-def make_driver(name: str, params: OvertakeParams = OvertakeParams()):
-    if name == "random":
-        return RandomDriver(params)
-    if name in STYLES:
-        return MPCDriver(STYLES[name], params)
-    raise ValueError(f"unknown driver {name!r}; choose from {', '.join(DRIVERS)}")

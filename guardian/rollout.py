@@ -1,28 +1,157 @@
-"""Supervised rollouts of the overtake scenario (Section 6.5.3)."""
+"""Supervised rollouts: one loop for every environment and agent.
+
+``run_episodes`` is the loop (one seeding rule, one progress callback, observers closed on every
+exit); ``overtake_rollouts`` (Section 6.5.3, ``guardian/Overtake-v0``) and ``highway_rollouts`` (the
+one ``Guardian`` on a highway-env environment) compose it with what they count.
+"""
 from __future__ import annotations
 
 import time
 
 import numpy as np
 
-from envs.drivers import make_driver
-from envs.overtake import OvertakeEnv
-from envs.wrappers import OvertakeGuardianWrapper
-from guardian.supervisor import IntentionAwareGuardian
-from intention.estimator import IntentionEstimator
+from envs.agents import make_agent
+
+
+class Observer:
+    """What a rollout counts or records; ``run_episodes`` calls these hooks (all optional)."""
+
+    def start_episode(self, env, episode: int, obs) -> None: ...
+
+    def before_step(self, env, obs, action) -> None: ...
+
+    def after_step(self, env, obs, action, info: dict) -> None: ...
+
+    def end_episode(self, env, episode: int) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None) -> None:
+    """The rollout loop: ``episodes`` seeded episodes of ``agent`` on ``env``.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        The environment, wrapped as the caller wants (guardian, video, ...). It is closed at the end.
+    agent : str
+        A name of ``envs.agents.AGENTS``.
+    episodes, seed : int
+        Episode i resets the env with seed ``seed + i`` and builds the agent with
+        ``numpy.random.default_rng([seed, i])``: the one seeding rule of every rollout.
+    observers : list of Observer
+        Told of every episode and step; closed on every exit, an exception too.
+    progress : callable, optional
+        ``progress(done, total)`` after each episode.
+    """
+    try:
+        for ep in range(episodes):
+            obs, _ = env.reset(seed=seed + ep)
+            act = make_agent(agent, env, np.random.default_rng([seed, ep]))
+            for o in observers:
+                o.start_episode(env, ep, obs)
+            done = False
+            while not done:
+                action = act(obs)
+                for o in observers:
+                    o.before_step(env, obs, action)
+                obs, _, terminated, truncated, info = env.step(action)
+                for o in observers:
+                    o.after_step(env, obs, action, info)
+                done = terminated or truncated
+            for o in observers:
+                o.end_episode(env, ep)
+            if progress:
+                progress(ep + 1, episodes)
+    finally:
+        env.close()
+        for o in observers:
+            o.close()
+
+
+# ---- guardian/Overtake-v0 (Section 6.5.3) ---------------------------------------------------------
+class OvertakeTally(Observer):
+    """Counts of an overtake rollout; estimates the intention alongside when the guardian does not."""
+
+    def __init__(self, library, estimator, passive: bool, intention: str, recorder=None):
+        self.library, self.estimator, self.passive, self.intention = library, estimator, passive, intention
+        self.recorder = recorder
+        self.totals = {"steps": 0, "safety_violations": 0, "override_steps": 0, "failsafe_steps": 0,
+                       "wrong_identifications": 0}
+        self.identify_steps = []
+
+    def start_episode(self, env, episode, obs) -> None:
+        if self.passive:
+            self.estimator.reset()
+        if self.recorder:
+            self.recorder.start_episode(episode, obs)
+
+    def before_step(self, env, obs, action) -> None:
+        self.prev = obs
+
+    def after_step(self, env, obs, action, info) -> None:
+        record = info.get("guardian")
+        applied = np.array(record["applied"]) if record else action
+        if self.passive:
+            self.estimator.update(self.prev, applied, obs)
+        t = self.totals
+        t["steps"] += 1
+        t["safety_violations"] += int(info["unsafe"])
+        if record:
+            t["override_steps"] += int(record["overridden"])
+            t["failsafe_steps"] += int(record["failsafe"])
+        if self.recorder:
+            self.recorder.log_step(self.prev, self.library.params.dt, record, action, applied)
+
+    def end_episode(self, env, episode) -> None:
+        if self.estimator.identified_at is not None:
+            self.identify_steps.append(self.estimator.identified_at)
+            self.totals["wrong_identifications"] += int(self.estimator.valid != [self.intention])
+
+    def close(self) -> None:
+        if self.recorder:
+            self.recorder.close()
 
 
 def overtake_rollouts(library, intention: str, driver: str, episodes: int, seed: int,
                       guardian: bool = True, use_intention: bool = True, disturbance: str = "random",
                       max_steps: int = 300, horizon: int = 10, rerun_path=None, progress=None) -> dict:
-    """Run ``episodes`` seeded episodes; episode i uses seed ``seed + i`` for the env and the driver.
+    """Seeded episodes of one driver on ``guardian/Overtake-v0``, with or without the guardian.
 
-    ``progress(done, total)`` is called after each episode (as ``highway_rollouts`` does).
+    Parameters
+    ----------
+    library : intention.library.OvertakeLibrary
+        The sets; initial states are drawn inside ``C_bnd`` (Theorem 4's assumption).
+    intention : str
+        The lead's intention, ``aggressive`` or ``cautious``.
+    driver : str
+        A name of ``envs.agents.AGENTS``.
+    episodes, seed : int
+        Seeded as ``run_episodes`` says.
+    guardian, use_intention : bool
+        Supervise; and let the guardian use the estimated intention (else it is pinned to ``C_bnd``).
+    disturbance : str
+        ``random`` or ``adversarial``.
+    max_steps, horizon : int
+        Steps per episode; the estimator's horizon N.
+    rerun_path : path, optional
+        Write a rerun recording there.
+    progress : callable, optional
+        ``progress(done, total)`` after each episode.
 
-    Initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). The estimator
-    statistics come from the guardian's estimator, or from a passive one when the guardian
-    does not estimate (so the numbers are comparable across modes).
+    Returns
+    -------
+    dict
+        ``episodes, intention, driver, disturbance, guardian, intention_aware, steps, safety_violations,
+        override_steps, failsafe_steps, wrong_identifications, mean_steps_to_identify_intention,
+        identified_fraction, seconds``. The estimator statistics come from the guardian's estimator,
+        or from a passive one when the guardian does not estimate (so the modes are comparable).
     """
+    from envs.overtake import OvertakeEnv
+    from envs.wrappers import OvertakeGuardianWrapper
+    from guardian.supervisor import IntentionAwareGuardian
+    from intention.estimator import IntentionEstimator
+
     env = OvertakeEnv({"intention": intention, "disturbance": disturbance, "max_steps": max_steps,
                        "initial_region": library.region("bounded_velocity"), "params": library.params})
     guard = IntentionAwareGuardian(library, use_intention=use_intention, horizon=horizon) if guardian else None
@@ -31,56 +160,22 @@ def overtake_rollouts(library, intention: str, driver: str, episodes: int, seed:
     passive = not (guard is not None and use_intention)  # estimate alongside, for the statistics
     estimator = IntentionEstimator({n: library.models[n] for n in ("aggressive", "cautious")},
                                    horizon=horizon) if passive else guard.estimator
-    drv = make_driver(driver, library.params)
     recorder = None
     if rerun_path is not None:
         from guardian.rerun_log import OvertakeRecorder
         recorder = OvertakeRecorder(rerun_path)
-    totals = {"steps": 0, "safety_violations": 0, "override_steps": 0, "failsafe_steps": 0,
-              "identify_steps": [], "wrong_identifications": 0}
-    try:
-        t0 = time.perf_counter()
-        for ep in range(episodes):
-            obs, _ = env.reset(seed=seed + ep)
-            drv.reset(np.random.default_rng(seed + ep + 1_000_003))
-            if passive:
-                estimator.reset()
-            if recorder:
-                recorder.start_episode(ep, obs)
-            done = False
-            while not done:
-                proposed = drv.act(obs)
-                prev = obs
-                obs, _, terminated, truncated, info = env.step(proposed)
-                record = info.get("guardian")
-                applied = np.array(record["applied"]) if record else proposed
-                if passive:
-                    estimator.update(prev, applied, obs)
-                totals["steps"] += 1
-                totals["safety_violations"] += int(info["unsafe"])
-                if record:
-                    totals["override_steps"] += int(record["overridden"])
-                    totals["failsafe_steps"] += int(record["failsafe"])
-                if recorder:
-                    recorder.log_step(prev, library.params.dt, record, proposed, applied)
-                done = terminated or truncated
-            if estimator.identified_at is not None:
-                totals["identify_steps"].append(estimator.identified_at)
-                totals["wrong_identifications"] += int(estimator.valid != [intention])
-            if progress:
-                progress(ep + 1, episodes)
-    finally:  # the .rrd is closed on every exit
-        if recorder:
-            recorder.close()
-    ident = totals.pop("identify_steps")
+    tally = OvertakeTally(library, estimator, passive, intention, recorder)
+    t0 = time.perf_counter()
+    run_episodes(env, driver, episodes, seed, [tally], progress)
+    ident = tally.identify_steps
     return {"episodes": episodes, "intention": intention, "driver": driver, "disturbance": disturbance,
-            "guardian": guardian, "intention_aware": guardian and use_intention, **totals,
+            "guardian": guardian, "intention_aware": guardian and use_intention, **tally.totals,
             "mean_steps_to_identify_intention": float(np.mean(ident)) if ident else None,
             "identified_fraction": len(ident) / episodes if episodes else 0.0,
             "seconds": round(time.perf_counter() - t0, 3)}
 
 
-# ---- highway-env environments (guardian/HighwayOvertake-v0, the highway-v0 family) ------------------
+# ---- highway-env environments (guardian/HighwayOvertake-v0, the highway-v0 family) -----------------
 OVERTAKE_ENV = "guardian/HighwayOvertake-v0"
 ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "ContinuousAction"}}
 
@@ -113,11 +208,32 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
 def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, action: str | None = None,
                      guardian: bool = True, library=None, intention: str | None = None,
                      disturbance: str = "random", traffic: int | None = None, use_intention: bool = True,
-                     env_config: dict | None = None, guardian_config=None, progress=None, recorder=None,
+                     env_config: dict | None = None, guardian_config=None, progress=None, rerun_path=None,
                      video_dir=None) -> dict:
     """Seeded episodes of one agent on a highway-env environment, with or without the ``Guardian``.
 
-    Episode i resets the env with seed ``seed + i`` and seeds the agent with ``[seed, i]``.
+    Parameters
+    ----------
+    env_id : str
+        ``guardian/HighwayOvertake-v0`` or a highway-env id (``highway-v0``, ...).
+    agent : str
+        A name of ``envs.agents.AGENTS``.
+    episodes, seed : int
+        Seeded as ``run_episodes`` says.
+    action : str, optional
+        ``continuous`` or ``meta`` (default: the env's own action type).
+    guardian, use_intention : bool
+        Wrap the env in the ``Guardian``; let it use the estimated intention.
+    library : intention.library.OvertakeLibrary, optional
+        The sets (HighwayOvertake: initial states are drawn inside ``C_bnd``).
+    intention, disturbance, traffic : optional
+        HighwayOvertake's lead intention and disturbance mode; the number of other cars.
+    env_config, guardian_config : optional
+        Extra env config; the ``GuardianConfig``.
+    progress : callable, optional
+        ``progress(done, total)`` after each episode.
+    rerun_path, video_dir : path, optional
+        Write a rerun recording; write each episode as MP4 into this folder.
 
     Returns
     -------
@@ -133,103 +249,129 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
 
     import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
     import highway_env  # noqa: F401 - registers the highway-env environments
-    from envs.agents import collision_fault, make_agent
-    from guardian.wrapper import EntryLedger, Guardian, GuardianConfig
+    from guardian.wrapper import Guardian, GuardianConfig
 
     overtake = env_id == OVERTAKE_ENV
     config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config)
     env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
     if guardian:
-        gcfg = guardian_config or GuardianConfig(use_intention=use_intention)
-        env = Guardian(env, library, gcfg)
+        env = Guardian(env, library, guardian_config or GuardianConfig(use_intention=use_intention))
     if video_dir:
         env = gym.wrappers.RecordVideo(env, str(video_dir), episode_trigger=lambda e: True,
                                        name_prefix=env_id.replace("/", "-"), disable_logger=True)
-    estimator = monitor = None
-    if overtake:
+    recorder = None
+    if rerun_path is not None:
+        from guardian.rerun_log import GuardianRecorder
+        recorder = GuardianRecorder(rerun_path)
+    tally = HighwayTally(env, overtake, guardian, recorder)
+    run_episodes(env, agent, episodes, seed, [tally], progress)
+    return tally.result(episodes)
+
+
+class HighwayTally(Observer):
+    """Counts of a highway-env rollout: collisions and who was at fault, overrides, model violations."""
+
+    def __init__(self, env, overtake: bool, guardian: bool, recorder=None):
+        self.overtake, self.guardian, self.recorder = overtake, guardian, recorder
+        self.estimator = self.monitor = None
+        if overtake:
+            self._watch_the_lead(env)
+        self.totals = {"episodes": 0, "steps": 0, "collisions": 0, "ego_at_fault_collisions": 0,
+                       "override_steps": 0, "refused_lane_changes": 0, "clipped_sim_steps": 0, "lane_changes": 0,
+                       "distance_mean": 0.0, "model_violation_steps": 0, "traffic_model_violation_steps": 0,
+                       "conflict_steps": 0, "failsafe_steps": 0, "crashes": []}
+        if overtake:
+            self.totals.update({"safety_violations": 0, "wrong_identifications": 0})
+        self.identify, self.distance, self.monitor_worst = [], 0.0, {}
+
+    def _watch_the_lead(self, env) -> None:
         from guardian.monitor import ModelMonitor
+        from guardian.wrapper import GuardianConfig
         from intention.estimator import IntentionEstimator
         from intention.models import intention_models
 
         models = intention_models(env.unwrapped.params)
         candidates = {n: models[n] for n in ("aggressive", "cautious")}
-        estimator = IntentionEstimator(candidates, horizon=10)
-        if not guardian:  # the guardian's own monitor counts when it is there
+        self.estimator = IntentionEstimator(candidates, horizon=10)
+        if not self.guardian:  # the guardian's own monitor counts when it is there
             g = GuardianConfig()
-            monitor = ModelMonitor(env.unwrapped.params.dt, (-g.traffic_accel, g.traffic_accel), g.v_max,
-                                   env.unwrapped.params, candidates)
-    totals = {"episodes": episodes, "steps": 0, "collisions": 0, "ego_at_fault_collisions": 0, "override_steps": 0,
-              "refused_lane_changes": 0, "clipped_sim_steps": 0, "lane_changes": 0, "distance_mean": 0.0,
-              "model_violation_steps": 0, "traffic_model_violation_steps": 0, "conflict_steps": 0,
-              "failsafe_steps": 0, "crashes": []}
-    if overtake:
-        totals.update({"safety_violations": 0, "wrong_identifications": 0})
-    identify = []
-    distance = 0.0
-    monitor_worst = {}
-    try:
-        for ep in range(episodes):
-            obs, info = env.reset(seed=seed + ep)
-            base = env.unwrapped
-            pol = make_agent(agent, env, np.random.default_rng([seed, ep]))
-            if estimator is not None:
-                estimator.reset()
-            if recorder is not None:
-                recorder.start_episode(env, ep)
-            x0 = float(base.vehicle.position[0])
-            ledger = EntryLedger(base) if overtake else None
-            done, t = False, 0
-            while not done:
-                lane_before = base.vehicle.lane_index[2]
-                y_before = float(base.vehicle.position[1])
-                if ledger is not None:
-                    ledger.before_step(base)
-                obs, _, term, trunc, info = env.step(pol(obs))
-                t += 1
-                if ledger is not None:
-                    ledger.after_step(base)
-                _count_step(totals, info.get("guardian"), base, lane_before)
-                if estimator is not None:
-                    tr = base.last_transition
-                    estimator.update(tr["state"], tr["input"], tr["next_state"])
-                if monitor is not None:
-                    totals["model_violation_steps"] += int(sum(monitor.overtake_transition(
-                        tr["state"], tr["input"], tr["next_state"])) > 0)
-                    totals["safety_violations"] += int(info["unsafe"])
-                if recorder is not None:
-                    recorder.log(env, ep, t, info.get("guardian"))
-                fault = collision_fault(env, y_before if overtake else None,
-                                        ledger.entered_responsibly if ledger is not None else None)
-                if fault:
-                    g = info.get("guardian") or {}
-                    totals["collisions"] += 1
-                    totals["ego_at_fault_collisions"] += int(fault == "ego")
-                    totals["crashes"].append({"episode": ep, "step": t, "fault": fault,
-                                              "conflict": bool(g.get("conflict_steps")),
-                                              "reasons": g.get("reasons", [])})
-                done = term or trunc
-            if estimator is not None and estimator.identified_at is not None:
-                identify.append(estimator.identified_at)
-                totals["wrong_identifications"] += int(estimator.valid != [base.model.name])
-            distance += float(base.vehicle.position[0]) - x0
-            if guardian:
-                for k, v in _guardian_of(env).monitor.worst.items():
-                    monitor_worst[k] = max(monitor_worst.get(k, 0.0), v)
-            if progress:
-                progress(ep + 1, episodes)
-    finally:
-        env.close()
-    totals["distance_mean"] = distance / episodes
-    if not guardian:  # measured only by the guardian's monitor (and, on HighwayOvertake, from the env's transitions)
-        totals["traffic_model_violation_steps"] = None
-        if not overtake:
-            totals["model_violation_steps"] = None
-    if guardian:
-        totals["traffic_model_worst"] = {k: round(v, 6) for k, v in monitor_worst.items()}
-    if overtake:
-        totals["mean_steps_to_identify_intention"] = float(np.mean(identify)) if identify else None
-        totals["identified_fraction"] = len(identify) / episodes
-    return totals
+            self.monitor = ModelMonitor(env.unwrapped.params.dt, (-g.traffic_accel, g.traffic_accel), g.v_max,
+                                        env.unwrapped.params, candidates)
+
+    def start_episode(self, env, episode, obs) -> None:
+        from guardian.wrapper import EntryLedger
+
+        base = env.unwrapped
+        if self.estimator is not None:
+            self.estimator.reset()
+        if self.recorder is not None:
+            self.recorder.start_episode(env, episode)
+        self.episode, self.t = episode, 0
+        self.x0 = float(base.vehicle.position[0])
+        self.ledger = EntryLedger(base) if self.overtake else None
+
+    def before_step(self, env, obs, action) -> None:
+        base = env.unwrapped
+        self.lane_before = base.vehicle.lane_index[2]
+        self.y_before = float(base.vehicle.position[1])
+        if self.ledger is not None:
+            self.ledger.before_step(base)
+
+    def after_step(self, env, obs, action, info) -> None:
+        from envs.agents import collision_fault
+
+        base, totals = env.unwrapped, self.totals
+        self.t += 1
+        if self.ledger is not None:
+            self.ledger.after_step(base)
+        _count_step(totals, info.get("guardian"), base, self.lane_before)
+        if self.estimator is not None:
+            tr = base.last_transition
+            self.estimator.update(tr["state"], tr["input"], tr["next_state"])
+        if self.monitor is not None:
+            totals["model_violation_steps"] += int(sum(self.monitor.overtake_transition(
+                tr["state"], tr["input"], tr["next_state"])) > 0)
+            totals["safety_violations"] += int(info["unsafe"])
+        if self.recorder is not None:
+            self.recorder.log(env, self.episode, self.t, info.get("guardian"))
+        fault = collision_fault(env, self.y_before if self.overtake else None,
+                                self.ledger.entered_responsibly if self.ledger is not None else None)
+        if fault:
+            g = info.get("guardian") or {}
+            totals["collisions"] += 1
+            totals["ego_at_fault_collisions"] += int(fault == "ego")
+            totals["crashes"].append({"episode": self.episode, "step": self.t, "fault": fault,
+                                      "conflict": bool(g.get("conflict_steps")), "reasons": g.get("reasons", [])})
+
+    def end_episode(self, env, episode) -> None:
+        base = env.unwrapped
+        if self.estimator is not None and self.estimator.identified_at is not None:
+            self.identify.append(self.estimator.identified_at)
+            self.totals["wrong_identifications"] += int(self.estimator.valid != [base.model.name])
+        self.distance += float(base.vehicle.position[0]) - self.x0
+        if self.guardian:
+            for k, v in _guardian_of(env).monitor.worst.items():
+                self.monitor_worst[k] = max(self.monitor_worst.get(k, 0.0), v)
+
+    def close(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()
+
+    def result(self, episodes: int) -> dict:
+        totals = self.totals
+        totals["episodes"] = episodes
+        totals["distance_mean"] = self.distance / episodes
+        if not self.guardian:  # measured only by the guardian's monitor (and, on HighwayOvertake, from the env)
+            totals["traffic_model_violation_steps"] = None
+            if not self.overtake:
+                totals["model_violation_steps"] = None
+        if self.guardian:
+            totals["traffic_model_worst"] = {k: round(v, 6) for k, v in self.monitor_worst.items()}
+        if self.overtake:
+            ident = self.identify
+            totals["mean_steps_to_identify_intention"] = float(np.mean(ident)) if ident else None
+            totals["identified_fraction"] = len(ident) / episodes
+        return totals
 
 
 def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:

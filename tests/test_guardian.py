@@ -5,7 +5,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import envs  # noqa: F401  (registers guardian/Overtake-v0)
-from envs.drivers import make_driver
+from envs.agents import make_agent
 from envs.overtake import OvertakeEnv
 from envs.wrappers import OvertakeGuardianWrapper
 from guardian.rollout import overtake_rollouts
@@ -35,13 +35,12 @@ def test_supervised_random_driver_never_leaves_the_invariant_set(library, intent
                        "initial_region": library.region("bounded_velocity")})
     guard = IntentionAwareGuardian(library)
     env = OvertakeGuardianWrapper(env, guard)
-    driver = make_driver("random")
     for ep in range(8):
         obs, _ = env.reset(seed=100 + ep)
-        driver.reset(np.random.default_rng(ep))
+        driver = make_agent("random", env, np.random.default_rng(ep))
         done = False
         while not done:
-            obs, _, terminated, truncated, info = env.step(driver.act(obs))
+            obs, _, terminated, truncated, info = env.step(driver(obs))
             g = info["guardian"]
             assert not info["unsafe"], obs
             assert g["in_invariant_set"] and not g["failsafe"]

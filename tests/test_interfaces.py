@@ -1,13 +1,45 @@
 """The declared interfaces: every implementation answers its Protocol."""
-from envs.drivers import DRIVERS, Driver, make_driver
+import gymnasium as gym
+import pytest
+import numpy as np
+
+import envs  # noqa: F401 - registers the environments
+from envs.agents import AGENTS, Agent, make_agent
 from guardian.supervisor import IntentionAwareGuardian, Supervisor
 from itha.car_following import CarFollowingParams, CarFollowingSet, MaximalSet, load_or_build
 
 
-def test_car_following_sets_drivers_and_the_supervisor_answer_their_protocols(library, tmp_path):
+def test_car_following_sets_agents_and_the_supervisor_answer_their_protocols(library, tmp_path):
     p = CarFollowingParams()
     assert isinstance(MaximalSet(p), CarFollowingSet)
     assert isinstance(load_or_build(p, cache_dir=tmp_path), CarFollowingSet)
-    assert all(isinstance(make_driver(name), Driver) for name in DRIVERS)
+    env = gym.make("guardian/Overtake-v0")
+    assert all(isinstance(make_agent(name, env, np.random.default_rng(0)), Agent) for name in AGENTS)
     assert isinstance(IntentionAwareGuardian(library), Supervisor)
     assert not isinstance(object(), Supervisor)
+
+
+def test_every_agent_acts_inside_the_action_space_of_every_env_it_drives():
+    """One registry, one calling convention: each agent on the overtake env (physical units) and on
+    highway-env (meta and continuous) returns actions of that space; the MPC drivers refuse highway-v0."""
+    import highway_env  # noqa: F401
+
+    from envs.mpc import STYLES
+
+    envs_ = {"overtake": gym.make("guardian/Overtake-v0"),
+             "meta": gym.make("highway-fast-v0", config={"action": {"type": "DiscreteMetaAction"}}),
+             "continuous": gym.make("highway-fast-v0", config={"action": {"type": "ContinuousAction"}})}
+    for kind, env in envs_.items():
+        for name in AGENTS:
+            obs, _ = env.reset(seed=1)
+            if name in STYLES and kind != "overtake":
+                with pytest.raises(ValueError, match="MPC drivers drive"):
+                    make_agent(name, env, np.random.default_rng(0))
+                continue
+            agent = make_agent(name, env, np.random.default_rng(0))
+            for _ in range(25):
+                action = agent(obs)
+                assert env.action_space.contains(action), (kind, name, action)
+                obs, _, term, trunc, _ = env.step(action)
+                if term or trunc:
+                    obs, _ = env.reset(seed=2)

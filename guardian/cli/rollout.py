@@ -13,6 +13,7 @@ def cmd_rollout_highway_env(args) -> int:
     import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
     import highway_env  # noqa: F401 - registers the environments
     from envs.agents import AGENTS
+    from envs.mpc import STYLES
     from envs.highway_overtake import ConfigError
     from guardian.rollout import OVERTAKE_ENV, highway_rollouts
 
@@ -24,7 +25,7 @@ def cmd_rollout_highway_env(args) -> int:
         print(f"guardian rollout: unknown agent {args.agent!r}; choose from {', '.join(AGENTS)}", file=sys.stderr)
         return 2
     overtake = args.env == OVERTAKE_ENV
-    if args.agent in ("mpc", "bad", "careful") and not (overtake and args.action in (None, "continuous")):
+    if args.agent in STYLES and not (overtake and args.action in (None, "continuous")):
         print(f"guardian rollout: the {args.agent} driver drives {OVERTAKE_ENV} with --action continuous",
               file=sys.stderr)
         return 2
@@ -38,24 +39,17 @@ def cmd_rollout_highway_env(args) -> int:
     gcfg = GuardianConfig(use_intention=not args.no_intention, conflict=args.conflict)
     runs = []
     for k, intention in enumerate(intentions):
-        recorder = None
-        if args.rerun and k == 0:
-            from guardian.rerun_log import GuardianRecorder
-            recorder = GuardianRecorder(args.rerun)
         label = f"rollout {args.env}" + (f" {intention}" if intention else "")
         try:
             r = highway_rollouts(args.env, args.agent, args.episodes, args.seed, action=args.action,
                                  guardian=not args.no_guardian, library=library, intention=intention,
                                  disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
                                  env_config={"params": library.params} if library is not None else None,
-                                 progress=progress_bar(label), recorder=recorder,
+                                 progress=progress_bar(label), rerun_path=args.rerun if k == 0 else None,
                                  video_dir=(args.video / (intention or "all")) if args.video else None)
         except ConfigError as exc:
             print(f"guardian rollout: {exc}", file=sys.stderr)
             return 2
-        finally:
-            if recorder:
-                recorder.close()
         r.update({"env": args.env, "agent": args.agent, "action": args.action or "default",
                   "guardian": not args.no_guardian, "intention_aware": not args.no_guardian and not args.no_intention,
                   "disturbance": args.disturbance})
@@ -74,7 +68,7 @@ def cmd_rollout_highway_env(args) -> int:
 
 
 def cmd_rollout(args) -> int:
-    from envs.drivers import DRIVERS
+    from envs.agents import AGENTS, BASELINES
     from guardian.rollout import overtake_rollouts
 
     if args.episodes < 1:
@@ -85,9 +79,13 @@ def cmd_rollout(args) -> int:
             print("guardian rollout: --env and --scenario exclude each other", file=sys.stderr)
             return 2
         return cmd_rollout_highway_env(args)
+    if args.driver not in (*AGENTS, "all"):
+        print(f"guardian rollout: unknown driver {args.driver!r}; choose from {', '.join(AGENTS)} or all",
+              file=sys.stderr)
+        return 2
     lib = load_library(args)
     intentions = ("aggressive", "cautious") if args.intention == "all" else (args.intention,)
-    drivers = DRIVERS if args.driver == "all" else (args.driver,)
+    drivers = BASELINES if args.driver == "all" else (args.driver,)
     runs = [overtake_rollouts(lib, i, d, args.episodes, args.seed, guardian=not args.no_guardian,
                               use_intention=not args.no_intention, disturbance=args.disturbance,
                               max_steps=args.max_steps, horizon=args.horizon,
@@ -121,7 +119,9 @@ def add_commands(sub) -> None:
                    help="with --env: who wins when self-safety against the car ahead and the lead's set do not intersect")
     p.add_argument("--intention", type=intention_name, default="cautious",
                    help="aggressive | cautious | all (C_a, C_c accepted)")
-    p.add_argument("--driver", choices=["mpc", "bad", "careful", "random", "all"], default="mpc")
+    p.add_argument("--driver", default="mpc",
+                   help="the overtake scenario's driver: mpc | bad | careful | random | reckless | idle, or all "
+                        "(the four of Section 6.5.3: mpc, bad, careful, random)")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--disturbance", choices=["random", "adversarial"], default="random")
