@@ -152,6 +152,20 @@ def collision_fault(env, lateral_before: float | None = None, entered_responsibl
     towards it (point masses) — unless ``entered_responsibly(lane_id)`` says the ego's
     entry into that car's lane was ρ̂-responsible when it began (ITHA: the car behind then
     answers for its own safety).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A highway-env environment, right after a step.
+    lateral_before : float, optional
+        The ego's lateral position a step earlier (point-mass egos).
+    entered_responsibly : callable, optional
+        ``entered_responsibly(lane_id) -> bool``.
+
+    Returns
+    -------
+    str or None
+        ``"ego"``, ``"other"``, or None when the ego has not crashed.
     """
     base = env.unwrapped
     ego = base.vehicle

@@ -65,6 +65,14 @@ def sample_initial_state(box, region, rng: np.random.Generator, who: str) -> np.
 
 
 class OvertakeEnv(gym.Env):
+    """``guardian/Overtake-v0``: the ego behind a lead of one intention, dynamics (6.3)-(6.4).
+
+    Parameters
+    ----------
+    config : dict, optional
+        Overrides of ``DEFAULT_CONFIG`` (documented there, key by key); an unknown key raises.
+    """
+
     metadata = {"render_modes": []}
 
     def __init__(self, config: dict | None = None):

@@ -6,7 +6,17 @@ import numpy as np
 
 
 class OvertakeGuardianWrapper(gym.Wrapper):
-    """Every action passes through an ``IntentionAwareGuardian``; ``info["guardian"]`` says what it did."""
+    """Every action passes through an ``IntentionAwareGuardian``; ``info["guardian"]`` says what it did.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        ``guardian/Overtake-v0`` (possibly wrapped).
+    guardian : Supervisor
+        Usually an ``IntentionAwareGuardian``.
+    keep_polygons : bool
+        Put the admissible polygons ``S_I(x)`` into the record too (for plots and recordings).
+    """
 
     def __init__(self, env: gym.Env, guardian, keep_polygons: bool = False):
         super().__init__(env)

@@ -62,7 +62,19 @@ class Supervisor(Protocol):
 
 
 class IntentionAwareGuardian:
-    """Supervises one ego vehicle; ``step(x, u)`` returns the input to apply and a record."""
+    """Supervises one ego vehicle; ``step(x, u)`` returns the input to apply and a record.
+
+    Parameters
+    ----------
+    library : intention.library.OvertakeLibrary
+        The sets ``C_bnd``, ``C_a``, ``C_c`` and their models.
+    use_intention : bool
+        Switch to the identified intention's set; False pins the guardian to ``C_bnd``.
+    horizon : int
+        The estimator's horizon N.
+    priority : tuple of int
+        Which input the override changes first (0: acceleration, 1: lateral velocity).
+    """
 
     def __init__(self, library, use_intention: bool = True, horizon: int = 10, priority=(0, 1)):
         self.library = library

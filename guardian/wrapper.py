@@ -283,6 +283,20 @@ class Guardian(gym.Wrapper):
                        "model_violations": {"ego": 0, "lead": 0, "traffic": 0}}
 
     def step(self, action):
+        """Supervise ``action`` for one policy step and pass it on.
+
+        Parameters
+        ----------
+        action
+            The agent's action, in the env's action space.
+
+        Returns
+        -------
+        tuple
+            The env's ``(obs, reward, terminated, truncated, info)``; ``info["guardian"]`` holds what
+            the guardian did (proposed and applied inputs, overrides and their reasons, model
+            violations, conflicts, fail-safe steps).
+        """
         base = self.env.unwrapped
         self._new_stats()
         proposed, applied_action = self._policy_level(base, action)

@@ -88,7 +88,18 @@ class EstimatorUpdate:
 
 @dataclass
 class IntentionEstimator:
-    """Maintains the valid intentions ``I_v(t+1) = E(xu^t)`` of Definition 16."""
+    """Maintains the valid intentions ``I_v(t+1) = E(xu^t)`` of Definition 16.
+
+    Parameters
+    ----------
+    models : dict of str to IntentionModel
+        The candidate intentions (e.g. ``aggressive`` and ``cautious``); each needs one ``E`` for all
+        its pieces and a box disturbance set.
+    horizon : int
+        N, the number of past transitions each LP_i (6.9) keeps.
+    tol : float
+        Slack of the feasibility LPs (measurement rounding).
+    """
 
     models: dict  # name -> IntentionModel (the candidate intentions, e.g. aggressive and cautious)
     horizon: int = 10
@@ -122,7 +133,20 @@ class IntentionEstimator:
             self._lps[name].clear()
 
     def update(self, x, u_e, x_next) -> EstimatorUpdate:
-        """Add the transition ``(x(t), u_e(t)) -> x(t+1)`` and re-solve LP_i for the valid i."""
+        """Add the transition ``(x(t), u_e(t)) -> x(t+1)`` and re-solve LP_i for the valid i.
+
+        Parameters
+        ----------
+        x, x_next : array of 4 floats
+            The state before and after the step.
+        u_e : array of 2 floats
+            The ego input that was applied.
+
+        Returns
+        -------
+        EstimatorUpdate
+            The intentions still valid, those this step invalidated, and the single remaining one.
+        """
         x, u_e, x_next = (finite_vector(v, None, f"estimator update: {name}")
                           for v, name in ((x, "x"), (u_e, "u_e"), (x_next, "x_next")))
         slot = self.steps % self.horizon

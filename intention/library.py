@@ -64,7 +64,17 @@ class InvariantSet:
 
 
 class OvertakeLibrary:
-    """``{C_bnd, C_a, C_c}`` with their models and supervisors."""
+    """``{C_bnd, C_a, C_c}`` with their models and supervisors; built by ``build_library``.
+
+    Parameters
+    ----------
+    params : OvertakeParams
+        The scenario's parameters the sets were computed for.
+    sets : dict of str to InvariantSet
+        ``bounded_velocity``, ``aggressive``, ``cautious``.
+    models : dict of str to IntentionModel
+        The PWA model of each set.
+    """
 
     def __init__(self, params: OvertakeParams, sets: dict, models: dict):
         self.params = params
@@ -73,6 +83,7 @@ class OvertakeLibrary:
         self._admissible: dict[str, AdmissibleInputs] = {}
 
     def region(self, name: str) -> Region:
+        """The set ``name`` (``C_bnd``/``C_a``/``C_c`` or the long names) as a union of polyhedra."""
         return self.sets[set_name(name)].region
 
     def admissible(self, name: str) -> AdmissibleInputs:
@@ -176,7 +187,20 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
 
 
 def export_set(library: OvertakeLibrary, name: str) -> dict:
-    """The set as JSON: x is in it iff ``A x <= b`` for some piece."""
+    """The set as JSON: x is in it iff ``A x <= b`` for some piece.
+
+    Parameters
+    ----------
+    library : OvertakeLibrary
+    name : str
+        ``C_bnd``, ``C_a``, ``C_c`` or the long names.
+
+    Returns
+    -------
+    dict
+        ``name, paper_name, state`` (the coordinates' names), the pieces' ``A`` and ``b``, and how
+        the set was computed (iterations, converged, parameters).
+    """
     from intention.params import STATE_NAMES
 
     name = set_name(name)

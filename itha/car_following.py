@@ -328,7 +328,23 @@ def compute_polyhedral(p: CarFollowingParams, max_iterations: int = 400, progres
 
 def load_or_build(p: CarFollowingParams, cache_dir=None, rebuild: bool = False, progress=None,
                   log=None) -> PolyhedralSet:
-    """The polyhedral set from the disk cache, or computed and stored (keyed by every parameter)."""
+    """The polyhedral car-following set from the disk cache, or computed and stored.
+
+    Parameters
+    ----------
+    p : CarFollowingParams
+        The model's parameters; the cache key hashes all of them and the code.
+    cache_dir : path, optional
+        The cache folder (default: ``GUARDIAN_CACHE_DIR`` or the user cache).
+    rebuild : bool
+        Recompute even when the cache holds the set.
+    progress, log : callable, optional
+        Iteration progress; cache messages.
+
+    Returns
+    -------
+    PolyhedralSet
+    """
     cache = RegionCache(cache_dir, use_cache=not rebuild, **({"log": log} if log else {}))
     payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint(__file__)}
 
@@ -340,7 +356,21 @@ def load_or_build(p: CarFollowingParams, cache_dir=None, rebuild: bool = False, 
     return PolyhedralSet(p, region, info)
 
 
-def make_set(p: CarFollowingParams, kind: str = "closed-form", **kw):
+def make_set(p: CarFollowingParams, kind: str = "closed-form", **kw) -> CarFollowingSet:
+    """The car-following set of ``p``: ``closed-form`` (``MaximalSet``) or ``polyhedral`` (``load_or_build``).
+
+    Parameters
+    ----------
+    p : CarFollowingParams
+    kind : str
+        ``closed-form`` or ``polyhedral``.
+    **kw
+        Passed to ``load_or_build``.
+
+    Returns
+    -------
+    CarFollowingSet
+    """
     if kind == "closed-form":
         return MaximalSet(p)
     if kind == "polyhedral":

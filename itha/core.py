@@ -74,7 +74,22 @@ class ITHA:
         return rho
 
     def step(self, t: int, states, inputs, triggers, choose: Callable[[Sequence[State]], State]):
-        """One step of (7.1c); ``choose`` picks the successor from each finite set."""
+        """One step of (7.1c).
+
+        Parameters
+        ----------
+        t : int
+            The time step.
+        states, inputs, triggers : sequence
+            Each agent's state, input and trigger (``τ_i`` in ``T_i``, else ``ValueError``).
+        choose : callable
+            Picks the successor from each agent's finite set of successors (or of reset states).
+
+        Returns
+        -------
+        (list, list of frozenset)
+            The next states and the resolution ``ρ`` the triggers produced.
+        """
         for i, (a, x, tau) in enumerate(zip(self.agents, states, triggers)):
             if tau not in a.triggers(t, x):
                 raise ValueError(f"agent {i} ({a.name}): trigger {tau!r} is not in T_i")
@@ -162,7 +177,20 @@ def ordered_actions(itha: ITHA, t: int, states, j: int, decided: dict[int, Trigg
 
 # ---- responsibility-sensitive safety -----------------------------------------------
 def is_self_safe(agent: Agent, t: int, x, u) -> bool:
-    """(7.4): ``f_i(x, u, D_i) ⊆ X_{i,c}``."""
+    """(7.4): ``f_i(x, u, D_i) ⊆ X_{i,c}``.
+
+    Parameters
+    ----------
+    agent : Agent
+    t : int
+    x, u
+        The agent's state and input.
+
+    Returns
+    -------
+    bool
+        Every successor under every disturbance lies in the agent's invariant set.
+    """
     return all(agent.invariant(y) for y in agent.successors(t, x, u))
 
 
@@ -170,9 +198,27 @@ def is_responsible(itha: ITHA, t: int, states, j: int, tau_j, u_j, rho_hat: list
                    triggers=None) -> bool:
     """(7.5) for agent j with ``ρ̂`` (a list of sets of resolutions, one per agent).
 
-    Only binding when ``τ_j ≠ ε`` and every agent is in its set. ``triggers``
-    (optional) is the context the resets read; by default j's trigger with
-    everyone else null.
+    Only binding when ``τ_j ≠ ε`` and every agent is in its set.
+
+    Parameters
+    ----------
+    itha : ITHA
+    t : int
+    states : sequence
+        Every agent's state.
+    j : int
+        The agent whose trigger is judged.
+    tau_j, u_j
+        Its trigger and input.
+    rho_hat : list of set
+        The over-approximation ``ρ̂`` of the resolution, one set per agent.
+    triggers : sequence, optional
+        The context the resets read; by default j's trigger with everyone else null.
+
+    Returns
+    -------
+    bool
+        Every agent that ``τ_j`` may reset is reset into its invariant set.
     """
     if tau_j == itha.agents[j].null:
         return True

@@ -383,7 +383,28 @@ def run_highway_episode(prm: HighwayParams, S, overapprox: str, steps: int, rng:
 
 def highway_experiment(runs: int, steps: int, seed: int, S, prm: HighwayParams = HighwayParams(),
                        overapproxes=OVERAPPROXIMATIONS, progress=None) -> dict:
-    """Section 7.4.1: the same random traffic for each over-approximation."""
+    """Section 7.4.1: the same random traffic for each over-approximation.
+
+    Parameters
+    ----------
+    runs, steps : int
+        Episodes and steps per episode.
+    seed : int
+        Run r is seeded with ``[seed, r]``; every over-approximation sees the same traffic.
+    S : CarFollowingSet
+        The car-following set the supervisors use.
+    prm : HighwayParams
+    overapproxes : tuple of str
+        ``trivial`` and/or ``ordered``.
+    progress : callable, optional
+        ``progress(overapproximation, done, total)``.
+
+    Returns
+    -------
+    dict
+        Per over-approximation: ``distance_mean, unsafe_steps, lane_changes, collisions,
+        infeasible_steps`` and the per-episode ``distances``.
+    """
     out = {}
     for oa in overapproxes:
         eps = []

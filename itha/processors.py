@@ -174,7 +174,26 @@ def run_episode(p: ProcessorParams, estimate: str, steps: int, rng: np.random.Ge
 
 def processors_experiment(runs: int, steps: int, seed: int, p: ProcessorParams = ProcessorParams(),
                           estimates=ESTIMATES, progress=None) -> dict:
-    """Section 7.4.2: the same graphs, queues and arrivals for every estimate."""
+    """Section 7.4.2: the same graphs, queues and arrivals for every estimate.
+
+    Parameters
+    ----------
+    runs, steps : int
+        Episodes and steps per episode.
+    seed : int
+        Run r is seeded with ``[seed, r]``.
+    p : ProcessorParams
+    estimates : tuple of str
+        The over-approximations of the incoming load to compare.
+    progress : callable, optional
+        ``progress(estimate, done, total)``.
+
+    Returns
+    -------
+    dict
+        Per estimate: ``accepted_jobs_mean, violations_mean, recruitments_mean, runs, steps`` and the
+        per-episode rows.
+    """
     out = {}
     for est in estimates:
         rows = []

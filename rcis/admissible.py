@@ -37,7 +37,20 @@ class OverrideResult:
 
 
 class AdmissibleInputs:
-    """``S(x)`` for one PWA system and one invariant region (inputs must be 2-D)."""
+    """``S(x)`` for one PWA system and one invariant region (inputs must be 2-D).
+
+    Parameters
+    ----------
+    system : PWASystem
+        With two inputs and a box input set.
+    invariant : Region
+        The robust controlled invariant set (a union of polyhedra).
+    margin : float
+        Erosion of the set at run time (``RUNTIME_MARGIN``, below the margin the set was built with, so
+        every state of the set has an admissible input).
+    input_names : pair of str
+        Names used in ``OverrideResult.changed``.
+    """
 
     def __init__(self, system: PWASystem, invariant: Region, margin: float = RUNTIME_MARGIN,
                  input_names=("throttle", "steering")):
@@ -96,6 +109,22 @@ class AdmissibleInputs:
         ``priority`` lists input indices: first change only ``priority[0]``
         (nearest value on the line through u), then only ``priority[1]``, then
         both (nearest point, distances scaled by the input ranges).
+
+        Parameters
+        ----------
+        x : array
+            The state.
+        u : array of 2 floats
+            The proposed input (finite, else ``ValueError``).
+        priority : pair of int
+        polygons, query : optional
+            ``S(x)`` already computed for this x.
+
+        Returns
+        -------
+        OverrideResult
+            ``applied`` (inside U, and inside ``S(x)`` when ``feasible``), ``overridden``, ``feasible``
+            and which input ``changed``.
         """
         u = np.asarray(u, dtype=float)
         if u.shape != (2,) or not np.all(np.isfinite(u)):

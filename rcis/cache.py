@@ -179,7 +179,23 @@ class RegionCache:
         return try_save(self.path(name, payload), region, payload, info, log=self.log)
 
     def get(self, name: str, payload: dict, compute) -> tuple[Region, dict, bool]:
-        """``(region, info, from_cache)``."""
+        """The cached region of ``payload``, or ``compute()``'s, stored.
+
+        Parameters
+        ----------
+        name : str
+            The file name's stem.
+        payload : dict
+            Every parameter that shaped the region (JSON); its hash is the key and it is stored with
+            the region, so a foreign or stale entry is refused.
+        compute : callable
+            ``compute() -> (region, info)``, ``info`` JSON.
+
+        Returns
+        -------
+        (Region, dict, bool)
+            The region, its info, and whether it came from the cache.
+        """
         hit = self.load(name, payload)
         if hit is not None:
             return hit[0], hit[1], True

@@ -139,6 +139,24 @@ def outside_in(system: PWASystem, safe: Region, max_iterations: int = 50,
     ``margin=0`` drops the erosion (Pre then is exact up to rounding); use it
     with a safe set tightened by more than the rounding, so that a fixed point
     that is invariant up to rounding still keeps the untightened safe set.
+
+    Parameters
+    ----------
+    system : PWASystem
+    safe : Region
+        ``Q_safe``.
+    max_iterations : int
+    progress : callable, optional
+        Called with one dict per iteration.
+    eps : float
+        ``C_k ⊆ C_{k+1}`` is tested to this (``FIXED_POINT_EPS``).
+    margin : float
+        Pre's erosion (``PRE_MARGIN``).
+
+    Returns
+    -------
+    InvariantResult
+        ``region, iterations, converged, seconds, history``; an RCIS only when ``converged``.
     """
     t0 = time.perf_counter()
     current = safe

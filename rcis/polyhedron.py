@@ -34,6 +34,13 @@ class Polyhedron:
 
     Construction normalises rows; a zero row with negative right-hand side
     makes the polyhedron empty (kept as the single row ``0 x <= -1``).
+
+    Parameters
+    ----------
+    A : array of shape (m, n)
+        Finite.
+    b : array of shape (m,)
+        Finite, or ``+inf`` for a row that constrains nothing (dropped).
     """
 
     __slots__ = ("A", "b", "_box", "_bbox")
@@ -93,7 +100,18 @@ class Polyhedron:
 
     # ---- membership ---------------------------------------------------
     def contains(self, X, tol: float = 1e-9):
-        """Membership of one point (1-D) or many points (rows of a 2-D array)."""
+        """Membership of one point (1-D) or many points (rows of a 2-D array).
+
+        Parameters
+        ----------
+        X : array of shape (n,) or (k, n)
+        tol : float
+            ``A x <= b + tol`` counts as inside (``MEMBERSHIP_TOL`` and its policy: ``rcis.tolerances``).
+
+        Returns
+        -------
+        bool or array of bool
+        """
         X = np.asarray(X, dtype=float)
         single = X.ndim == 1
         X2 = np.atleast_2d(X)
@@ -184,6 +202,16 @@ class Polyhedron:
         """Pontryagin difference ``P ⊖ E W = {z : z + E w in P for all w in W}``.
 
         Row i becomes ``a_i z <= b_i - h_W(E^T a_i)``.
+
+        Parameters
+        ----------
+        E : array of shape (n, p)
+        W : Polyhedron
+            The disturbance set in ``R^p``; bounded along every row direction, else ``ValueError``.
+
+        Returns
+        -------
+        Polyhedron
         """
         E = np.atleast_2d(np.asarray(E, dtype=float))
         shift = W.support_many(self.A @ E)
@@ -244,7 +272,20 @@ class Polyhedron:
         return P
 
     def project(self, keep) -> "Polyhedron":
-        """Orthogonal projection onto coordinates ``keep`` (in increasing order)."""
+        """Orthogonal projection onto coordinates ``keep`` (in increasing order).
+
+        Fourier-Motzkin elimination of the others, redundant rows removed after each step; derived
+        right-hand sides are lowered by ``FM_ROUNDING``, so rounding can only shrink the result.
+
+        Parameters
+        ----------
+        keep : sequence of int
+
+        Returns
+        -------
+        Polyhedron
+            In the coordinates ``keep``.
+        """
         drop = np.setdiff1d(np.arange(self.dim), np.atleast_1d(keep))
         return self.eliminate(drop)
 

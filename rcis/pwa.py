@@ -72,6 +72,17 @@ class PWASystem:
     the lead car's speed bounds, which the intention models respect by
     construction). Target constraints implied by it need no robustness margin
     and are left out of Pre; ``check_successor_box`` verifies the claim.
+
+    Parameters
+    ----------
+    pieces : sequence of PWAPiece
+        ``x+ = A_j x + B_j u + c_j + E_j w`` on the domain of piece j (the domains tile ``state_set``).
+    input_set : Polyhedron
+        U.
+    state_set : Polyhedron
+        X, the domain of the system.
+    successor_box : (lower, upper), optional
+    name : str
     """
 
     def __init__(self, pieces, input_set: Polyhedron, state_set: Polyhedron,
@@ -101,7 +112,18 @@ class PWASystem:
         raise ValueError(f"{self.name}: state {x.tolist()} lies in no piece's domain")
 
     def step(self, x, u, w) -> np.ndarray:
-        """``f(x, u, w)`` with the piece that owns x."""
+        """``f(x, u, w)`` with the piece that owns x.
+
+        Parameters
+        ----------
+        x, u, w : array
+            State, input and disturbance.
+
+        Returns
+        -------
+        ndarray
+            The successor state.
+        """
         x = np.asarray(x, dtype=float)
         p = self.pieces[self.piece_index(x)]
         return p.image(x, np.asarray(u, dtype=float)) + p.E @ np.asarray(w, dtype=float)
@@ -146,6 +168,21 @@ class PWASystem:
 
         Pieces without interior (Chebyshev radius <= min_radius) are dropped,
         which only shrinks the result.
+
+        Parameters
+        ----------
+        target : Polyhedron
+            The convex target set.
+        within : Polyhedron, optional
+            Intersect the result with it (saves projecting what would be cut away).
+        margin : float
+            The target is eroded by this much (``PRE_MARGIN``: the result errs inside).
+        min_radius : float
+
+        Returns
+        -------
+        list of Polyhedron
+            ``{x in X_j : exists u in U, f_j(x, u, w) in target for all w in W_j}``, one per piece j.
         """
         out = []
         inputs = np.arange(self.n_x, self.n_x + self.n_u)

@@ -7,6 +7,18 @@ import numpy as np
 def finite_vector(v, n: int | None, what: str) -> np.ndarray:
     """``v`` as a float array of shape ``(n,)`` (any length when ``n`` is None).
 
+    Parameters
+    ----------
+    v : array-like
+    n : int or None
+        The required length.
+    what : str
+        What ``v`` is, for the error message.
+
+    Returns
+    -------
+    ndarray of float
+
     Raises
     ------
     ValueError

@@ -73,6 +73,19 @@ def _lane_numbers(rec: Recording, lane_id: np.ndarray, direction: np.ndarray) ->
 
 
 def to_itha(rec: Recording) -> ITHAData:
+    """The ITHA view of a recording: per data point the ego's speed, its headway and the lead's speed.
+
+    Parameters
+    ----------
+    rec : Recording
+        A validated recording (``read_recording``).
+
+    Returns
+    -------
+    ITHAData
+        Arrays per (vehicle, frame with a next frame) in the driving direction, and the lane-change
+        events with the cars around them.
+    """
     t = rec.tracks.sort_values(["id", "frame"], kind="stable").reset_index(drop=True)
     dirmap = rec.tracks_meta.set_index("id")["drivingDirection"]
     ids = t["id"].to_numpy()

@@ -360,6 +360,30 @@ def write_recording(out_dir: Path, recording_id: int, tables) -> list[Path]:
 
 def generate(out_dir: Path, recordings: int, minutes: float, seed: int, prm: TrafficParams = TrafficParams(),
              progress=None, first_id: int = 1) -> list[Path]:
+    """Simulate IDM + MOBIL traffic on both carriageways and write it as HighD recordings.
+
+    Parameters
+    ----------
+    out_dir : path
+        Where the three files of each recording are written.
+    recordings : int
+        How many recordings, numbered from ``first_id``.
+    minutes : float
+        Length of each recording.
+    seed : int
+        Recording k is seeded with ``[seed, k]``.
+    prm : TrafficParams
+        The traffic's parameters.
+    progress : callable, optional
+        ``progress(recording_id, done, total)``.
+    first_id : int
+        The first recording's id.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
     written = []
     for k in range(recordings):
         rid = first_id + k

@@ -127,9 +127,24 @@ def _main_line_runs(df: pd.DataFrame, main_lanes: int) -> tuple[pd.DataFrame, di
 
 def convert_ngsim(path: Path, out: Path, main_lanes: int | None = None, recording_id: int = 1,
                   location_id: int = 0) -> dict:
-    """Write ``NN_recordingMeta.csv``, ``NN_tracksMeta.csv``, ``NN_tracks.csv`` into ``out``; return a report.
+    """Convert an NGSIM trajectory file to one HighD recording.
 
-    ``main_lanes`` None keeps every lane of the file (``"main_lanes": null`` in the report).
+    Parameters
+    ----------
+    path : path
+        The NGSIM file (US-101 / I-80 columns, feet).
+    out : path
+        Where ``NN_recordingMeta.csv``, ``NN_tracksMeta.csv`` and ``NN_tracks.csv`` are written.
+    main_lanes : int, optional
+        Keep lanes 1..main_lanes (ramps and shoulders dropped, and counted); None keeps every lane
+        (``"main_lanes": null`` in the report).
+    recording_id, location_id : int
+        The ids written into the meta files.
+
+    Returns
+    -------
+    dict
+        What was converted and what was dropped, with counts.
     """
     if main_lanes is not None and main_lanes < 1:
         raise ValueError(f"main_lanes must be at least 1, got {main_lanes}")

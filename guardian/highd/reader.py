@@ -218,6 +218,27 @@ def _markings(path: Path, value: str, column: str) -> list[float]:
 
 
 def read_recording(folder: Path, recording_id: int, plausibility: bool = True) -> Recording:
+    """Read and validate one recording's three files (``NN_recordingMeta``, ``NN_tracksMeta``, ``NN_tracks``).
+
+    Parameters
+    ----------
+    folder : path
+        The folder holding the files (``.csv``, or ``.csv.gz``/``.parquet`` where supported).
+    recording_id : int
+        NN.
+    plausibility : bool
+        Also apply the plausibility rules (speeds, accelerations, lane ids against the markings).
+
+    Returns
+    -------
+    Recording
+        The meta data, the two tables and the lane markings.
+
+    Raises
+    ------
+    HighDFormatError
+        Names the file, line, column and value of the first problem.
+    """
     folder = Path(folder)
     found = recording_files(folder).get(recording_id, {})
     paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}

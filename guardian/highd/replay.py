@@ -320,6 +320,40 @@ def _listing(folder: Path, ids) -> list[dict]:
 def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), contexts: bool = False,
            workers: int = 1, scheduler: str | None = None, progress=None, sensitivity: bool = False,
            measure_memory: bool = False) -> dict:
+    """Override rates of the ITHA supervisors on HighD-format recordings (Section 7.4.3).
+
+    Parameters
+    ----------
+    path : path, optional
+        A folder of recordings, or one of a recording's files; default: the embedded sample.
+    cfg : ReplayConfig
+        The open choices (split, quantiles, input bounds, plausibility rules).
+    contexts : bool
+        Also report the self-safety rate per lane and speed band, each with its own calibration.
+    workers : int
+        Processes that read, convert and evaluate the recordings.
+    scheduler : str, optional
+        A Dask scheduler address instead of local processes.
+    progress : callable, optional
+        ``progress(done, total)`` per recording.
+    sensitivity : bool
+        Also report the sensitivity table of the open choices.
+    measure_memory : bool
+        Report the peak traced memory.
+
+    Returns
+    -------
+    dict
+        ``recordings, data_points, trajectories, lane_changes, test_data_points, test_lane_changes,
+        train_disturbance_samples, dt, config``, the ``override_rates`` (``self_safety``,
+        ``responsibility_trivial``, ``responsibility_ordered``, RSS beside them), the calibrated
+        ``disturbance_bounds`` and ``input_bounds``, ``timings`` and ``seconds``.
+
+    Raises
+    ------
+    HighDFormatError
+        A file that breaks the format or a plausibility rule, named with its line and column.
+    """
     t0 = time.perf_counter()
     if measure_memory:
         tracemalloc.start()

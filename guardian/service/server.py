@@ -73,7 +73,20 @@ def bind(host: str, port: int, backlog: int) -> socket.socket:
 
 
 def make_server(library, config: ServiceConfig = ServiceConfig()) -> tuple[uvicorn.Server, socket.socket]:
-    """A uvicorn server for the guardian API and its bound socket (call ``server.run(sockets=[sock])``)."""
+    """A uvicorn server for the guardian API and its bound socket.
+
+    Parameters
+    ----------
+    library : intention.library.OvertakeLibrary
+        The sets every session's guardian uses.
+    config : ServiceConfig
+        Address, token, session TTL and cap, and the request limits; checked first.
+
+    Returns
+    -------
+    (uvicorn.Server, socket.socket)
+        Call ``server.run(sockets=[sock])``.
+    """
     config.check()
     store = SessionStore(library, ttl=config.session_ttl, max_sessions=config.max_sessions)
     app = create_app(library, store, config.limits, config.token)
