@@ -1,6 +1,11 @@
 """The guardian's cost per simulation step beside the simulator's own step (issue 9: under 10 %).
 
-Run: python benchmarks/bench_highway_guardian.py [--json] [--episodes N]
+Run: python benchmarks/bench_highway_guardian.py [--json] [--episodes N] [--before REV]
+
+``--before REV`` runs the same cases with the code of an older commit (a temporary git worktree put
+first on ``PYTHONPATH``) in the same run, and prints its figures beside these. Target (issue 12): the
+guardian at most 5 % of the simulator's step on ``highway-v0`` defaults and on lanes_count=5,
+vehicles_count=80.
 
 For each environment and action type, seeded episodes of a random agent run twice: without the
 guardian (the simulator's own step, timed per simulation step) and with it (the guardian's
@@ -12,6 +17,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -24,7 +32,9 @@ from guardian.rollout import OVERTAKE_ENV, highway_env_config
 from guardian.wrapper import Guardian
 from intention.library import build_library
 
-CASES = [(OVERTAKE_ENV, "continuous"), (OVERTAKE_ENV, "meta"), ("highway-v0", "meta"), ("highway-v0", "continuous")]
+DENSE = {"lanes_count": 5, "vehicles_count": 80}  # issue 12's dense configuration
+CASES = [(OVERTAKE_ENV, "continuous", None), (OVERTAKE_ENV, "meta", None), ("highway-v0", "meta", None),
+         ("highway-v0", "continuous", None), ("highway-v0", "meta", DENSE), ("highway-v0", "continuous", DENSE)]
 
 
 def _timed_sim(env, episodes: int, guarded: bool):
@@ -65,12 +75,13 @@ def _timed_sim(env, episodes: int, guarded: bool):
 def bench(episodes: int) -> dict:
     library = build_library(quiet=True, workers=2)
     out = {}
-    for env_id, action in CASES:
-        cfg = highway_env_config(env_id, action, "cautious", "random", None, library)
+    for env_id, action, extra in CASES:
+        cfg = highway_env_config(env_id, action, "cautious", "random", None, library, extra)
         free, _, free_steps = _timed_sim(gym.make(env_id, config=cfg), episodes, False)
         _, hook, guarded_steps = _timed_sim(Guardian(gym.make(env_id, config=cfg), library), episodes, True)
         sim_ms = 1e3 * np.median(free)
-        out[f"{env_id} {action}"] = {
+        name = f"{env_id} {action}" + (" lanes_count=5 vehicles_count=80" if extra else "")
+        out[name] = {
             "sim_steps": int(len(hook)),
             "simulator_step_ms_median": round(sim_ms, 3),
             "env_step_ms_median": round(1e3 * np.median(free_steps), 3),
@@ -82,17 +93,31 @@ def bench(episodes: int) -> dict:
     return out
 
 
+def before(rev: str, episodes: int) -> dict:
+    from worktree import checkout
+
+    with checkout(rev) as tree:
+        env = {**os.environ, "PYTHONPATH": str(tree)}
+        out = subprocess.run([sys.executable, __file__, "--json", "--episodes", str(episodes)], env=env,
+                             check=True, capture_output=True, text=True)
+    return json.loads(out.stdout)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--episodes", type=int, default=3)
+    ap.add_argument("--before", default=None, help="an older commit to measure beside this checkout")
     args = ap.parse_args()
     res = bench(args.episodes)
+    if args.before:
+        for k, v in before(args.before, args.episodes).items():
+            res[f"before {args.before}: {k}"] = v
     if args.json:
         print(json.dumps(res, indent=2))
         return
     for k, v in res.items():
-        print(f"{k:40s} sim step {v['simulator_step_ms_median']:.2f} ms | guardian median "
+        print(f"{k:80s} sim step {v['simulator_step_ms_median']:.2f} ms | guardian median "
               f"{v['guardian_ms_median']:.3f} ms p99 {v['guardian_ms_p99']:.3f} ms | share "
               f"{100 * v['guardian_share_of_sim_step']:.1f} % | env.step {v['env_step_ms_median']:.2f} ms "
               f"-> {v['guarded_env_step_ms_median']:.2f} ms guarded")

@@ -38,9 +38,11 @@ class ModelMonitor:
     def _snapshot(self, base, applied):
         ego = base.vehicle
         lead = getattr(base, "lead", None)
-        traffic = {id(v): (float(v.position[0]), float(v.speed)) for v in base.road.vehicles
-                   if v is not ego and v is not lead}
-        snap = {"traffic": traffic, "applied": np.asarray(applied, float),
+        others = [v for v in base.road.vehicles if v is not ego and v is not lead]
+        ids = np.fromiter((id(v) for v in others), dtype=np.int64, count=len(others))
+        x_v = np.fromiter((c for v in others for c in (v.position[0], v.speed)), dtype=float,
+                          count=2 * len(others)).reshape(-1, 2)
+        snap = {"traffic": (ids, x_v), "applied": np.asarray(applied, float),
                 "ego": (float(ego.position[0]), float(ego.speed), float(ego.heading))}
         if lead is not None:
             snap["x"] = base.overtake_state()
@@ -61,16 +63,17 @@ class ModelMonitor:
         counts = {"ego": 0, "lead": 0, "traffic": 0}
         dt = self.dt
         lo, hi = self.d_bounds
-        for key, (x0, v0) in prev["traffic"].items():
-            if key not in now["traffic"]:
-                continue
-            x1, v1 = now["traffic"][key]
+        (ids0, xv0), (ids1, xv1) = prev["traffic"], now["traffic"]
+        _, i0, i1 = np.intersect1d(ids0, ids1, assume_unique=True, return_indices=True)  # cars seen both times
+        if i0.size:
+            (x0, v0), (x1, v1) = xv0[i0].T, xv1[i1].T
             a = (v1 - v0) / dt
             w = self.worst
-            w["traffic_progress_shortfall_m"] = max(w["traffic_progress_shortfall_m"], dt * v0 - (x1 - x0))
-            w["traffic_braking_excess"] = max(w["traffic_braking_excess"], lo - a)
-            if abs(x1 - x0 - dt * v0) > TOL or not (lo - TOL <= a <= hi + TOL) or not (-TOL <= v1 <= self.v_max + TOL):
-                counts["traffic"] += 1
+            w["traffic_progress_shortfall_m"] = max(w["traffic_progress_shortfall_m"], float(np.max(dt * v0 - (x1 - x0))))
+            w["traffic_braking_excess"] = max(w["traffic_braking_excess"], float(np.max(lo - a)))
+            fits = (np.abs(x1 - x0 - dt * v0) <= TOL) & (lo - TOL <= a) & (a <= hi + TOL) & \
+                (-TOL <= v1) & (v1 <= self.v_max + TOL)
+            counts["traffic"] = int(np.count_nonzero(~fits))
         if "x" in prev:
             counts["ego"], counts["lead"] = self._overtake(prev["x"], prev["applied"], now["x"])
         else:

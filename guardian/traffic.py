@@ -36,9 +36,35 @@ class Car:
 
 @dataclass(frozen=True)
 class Scene:
+    """The road at one instant; each lane's nearest car ahead of and behind the ego, computed once."""
+
     ego: Car
     others: tuple
     n_lanes: int
+
+    def leader(self, lane: int):
+        """The nearest car in ``lane`` whose front is at or ahead of the ego's (None if there is none)."""
+        return self._neighbours(lane)[0]
+
+    def follower(self, lane: int):
+        """The nearest car in ``lane`` whose front is behind the ego's (None if there is none)."""
+        return self._neighbours(lane)[1]
+
+    def _neighbours(self, lane: int):
+        cache = self.__dict__.setdefault("_lane_neighbours", {})
+        if lane not in cache:
+            ahead = behind = None
+            front = self.ego.front
+            for c in self.others:  # the first of equals wins, as min/max over the list did
+                if lane not in c.lanes:
+                    continue
+                if c.front >= front:
+                    if ahead is None or c.front < ahead.front:
+                        ahead = c
+                elif behind is None or c.front > behind.front:
+                    behind = c
+            cache[lane] = (ahead, behind)
+        return cache[lane]
 
 
 @dataclass(frozen=True)
@@ -66,12 +92,10 @@ class TrafficSupervisor:
         return [(0.0, self.params.v_max)]
 
     def leader(self, scene: Scene, lane: int):
-        ahead = [c for c in scene.others if lane in c.lanes and c.front >= scene.ego.front]
-        return min(ahead, key=lambda c: c.front) if ahead else None
+        return scene.leader(lane)
 
     def follower(self, scene: Scene, lane: int):
-        behind = [c for c in scene.others if lane in c.lanes and c.front < scene.ego.front]
-        return max(behind, key=lambda c: c.front) if behind else None
+        return scene.follower(lane)
 
     def self_safe_speeds(self, scene: Scene) -> tuple[list, str]:
         """Next ego speeds that are self-safe (7.4) against the nearest car ahead in each occupied lane."""

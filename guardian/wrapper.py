@@ -51,6 +51,7 @@ part alone is empty on ``highway-v0``: full braking.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -149,13 +150,23 @@ def road_scene(base, ego_lanes, n_lanes: int) -> Scene:
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego or veh is lead:
             continue
-        ids = {veh.lane_index[2]}
-        if isinstance(veh, ControlledVehicle):
-            ids.add(veh.target_lane_index[2])
+        lane = veh.lane_index[2]
+        target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
         others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed),
-                          frozenset(n_lanes - i for i in ids), veh.LENGTH, f"car {k}"))
+                          _itha_lanes(n_lanes, lane, target), veh.LENGTH, f"car {k}"))
     me = Car(float(ego.position[0]) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego")
     return Scene(me, tuple(others), n_lanes)
+
+
+@functools.lru_cache(maxsize=None)
+def _is_controlled(vehicle_type) -> bool:
+    return issubclass(vehicle_type, ControlledVehicle)
+
+
+@functools.lru_cache(maxsize=None)
+def _itha_lanes(n_lanes: int, lane: int, target: int) -> frozenset:
+    """ITHA lanes (``n - id``) of a car in ``lane`` heading for ``target``."""
+    return frozenset({n_lanes - lane, n_lanes - target})
 
 
 class EntryLedger:

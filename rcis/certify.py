@@ -171,6 +171,49 @@ def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
     return report
 
 
+def falsify_all(jobs: dict, workers: int = 1, progress=None) -> dict:
+    """``falsify(**job)`` for every named job, in up to ``workers`` processes.
+
+    Parameters
+    ----------
+    jobs : dict of str to dict
+        Keyword arguments of ``falsify`` per name (without ``progress``); with several workers they
+        start in this order, so put the largest first.
+    workers : int
+        Processes; 1 runs the jobs one after another in this process.
+    progress : callable, optional
+        ``progress(name, done, total)``.
+
+    Returns
+    -------
+    dict of str to FalsifierReport
+        The same reports as ``falsify`` gives for each job alone (each job seeds its own generator).
+    """
+    def reporter(name):
+        return (lambda done, total: progress(name, done, total)) if progress else None
+
+    if workers <= 1 or len(jobs) <= 1:
+        return {name: falsify(**job, progress=reporter(name)) for name, job in jobs.items()}
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+        queue = manager.Queue()
+        futures = {name: pool.submit(_falsify_reporting, job, name, queue) for name, job in jobs.items()}
+        pending = set(futures.values())
+        while pending:
+            _, pending = wait(pending, timeout=0.2)
+            while not queue.empty():
+                name, done, total = queue.get()
+                if progress:
+                    progress(name, done, total)
+        return {name: f.result() for name, f in futures.items()}
+
+
+def _falsify_reporting(job: dict, name: str, queue) -> FalsifierReport:
+    return falsify(**job, progress=lambda done, total: queue.put((name, done, total)))
+
+
 def _common_piece(region: Region, points: np.ndarray):
     A, b, starts = region.stacked()
     p = _kernels.first_piece_holding_all(A, b, starts, np.ascontiguousarray(points), MEMBERSHIP_TOL)

@@ -99,16 +99,26 @@ class PWASystem:
         for p in self.pieces:
             if p.domain.dim != self.n_x or np.shape(p.B)[1] != self.n_u:
                 raise ValueError(f"piece {p.label!r} does not match n_x={self.n_x}, n_u={self.n_u}")
+        # every domain row at once, so piece_index is one matrix-vector product
+        self._domain_A = np.vstack([p.domain.A for p in self.pieces])
+        self._domain_b = np.concatenate([p.domain.b for p in self.pieces])
+        self._domain_strict = np.concatenate([p.strict for p in self.pieces])
+        self._domain_owner = np.repeat(np.arange(len(self.pieces)), [p.domain.n_constraints for p in self.pieces])
 
     def __repr__(self) -> str:
         return f"PWASystem({self.name!r}, pieces={len(self.pieces)})"
 
     # ---- simulation ----------------------------------------------------
     def piece_index(self, x) -> int:
+        """The first piece whose domain holds x (``PWAPiece.holds``: strict rows strict)."""
         x = np.asarray(x, dtype=float)
-        for j, p in enumerate(self.pieces):
-            if p.holds(x):
-                return j
+        s = self._domain_A @ x - self._domain_b
+        broken = np.where(self._domain_strict, ~(s < -PIECE_TOL), ~(s <= PIECE_TOL))  # NaN breaks a row
+        missed = np.zeros(len(self.pieces), dtype=bool)
+        missed[self._domain_owner[broken]] = True
+        j = int(np.argmin(missed))
+        if not missed[j]:
+            return j
         raise ValueError(f"{self.name}: state {x.tolist()} lies in no piece's domain")
 
     def step(self, x, u, w) -> np.ndarray:

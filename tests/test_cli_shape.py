@@ -16,7 +16,7 @@ COMMANDS = {  # every command and its options, as the README documents them
     ("highd", "generate"): {"--out", "--recordings", "--minutes", "--seed", "--lanes", "--first-id", "--json"},
     ("data", "convert", "ngsim"): {"--out", "--main-lanes", "--recording-id", "--json"},
     ("replay",): {"--seed", "--contexts", "--workers", "--scheduler", "--sensitivity", "--h-min", "--u-min",
-                  "--u-max", "--input-bounds", "--v-max", "--no-plausibility", "--rerun", "--json"},
+                  "--u-max", "--input-bounds", "--v-max", "--no-plausibility", "--no-cache", "--rerun", "--json"},
     ("serve",): {"--host", "--port", "--token", "--session-ttl", "--max-sessions", "--json"},
 }
 

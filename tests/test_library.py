@@ -184,3 +184,24 @@ def test_restricting_S_to_boxes_is_the_intersection(library):
         assert r.contains(u) == (q.contains(u) and in_box)
     assert q.restricted([((-3.0, 3.0), (-1.8, 1.8))]).contains(grid[0]) == q.contains(grid[0])
     assert not q.restricted([]).polygons
+
+
+def test_parallel_certification_gives_the_serial_reports_and_still_catches_the_defect(library):
+    """falsify_all in two processes: the same reports as one after another, the injected defect found."""
+    from rcis.admissible import AdmissibleInputs
+    from rcis.certify import falsify_all
+
+    p = library.params
+    system = library.models["bounded_velocity"].system
+    bad = Region(library.region("bounded_velocity").pieces + [Polyhedron.from_box([34.0, -0.9, 10.0, 0.0],
+                                                                                [36.0, -0.5, 12.0, 5.0])], 4)
+    jobs = {"defect": {"system": system, "invariant": bad, "samples": 400, "seed": 1, "window": window(p),
+                       "admissible": AdmissibleInputs(system, bad)},
+            "cautious": {"system": library.models["cautious"].system, "invariant": library.region("cautious"),
+                         "samples": 400, "seed": 2, "window": window(p), "admissible": library.admissible("cautious")}}
+    seen = []
+    serial = falsify_all(jobs, workers=1)
+    parallel = falsify_all(jobs, workers=2, progress=lambda name, done, total: seen.append(name))
+    assert {n: r.as_dict() for n, r in serial.items()} == {n: r.as_dict() for n, r in parallel.items()}
+    assert parallel["defect"].counterexamples and not parallel["cautious"].counterexamples
+    assert set(seen) == {"defect", "cautious"}

@@ -75,3 +75,23 @@ def test_bounded_velocity_allows_any_next_lead_speed():
     lo, hi = model.lead_acceleration_interval(np.array([25.0, 0.0, 30.0, 20.0]))
     nxt = lambda a: 20.0 + (a - P.b_L * 20.0) * P.dt
     assert nxt(lo) == pytest.approx(0.0) and nxt(hi) == pytest.approx(33.5)
+
+
+def test_piece_index_is_the_first_piece_that_holds_the_state():
+    """The stacked one-product piece_index agrees with PWAPiece.holds, on the switching surfaces too."""
+    from intention.models import intention_models
+
+    rng = np.random.default_rng(5)
+    for model in intention_models().values():
+        system = model.system
+        X = rng.uniform([15, -1, -120, -1], [36, 3, 120, 35], size=(3000, 4))
+        X[::3, 2] = np.round(X[::3, 2])  # on integer headways, where zone boundaries sit
+        for x in X:
+            holders = [j for j, p in enumerate(system.pieces) if p.holds(x)]
+            if holders:
+                assert system.piece_index(x) == holders[0]
+            else:
+                with pytest.raises(ValueError):
+                    system.piece_index(x)
+        with pytest.raises(ValueError):
+            system.piece_index(np.array([20.0, 0.0, np.nan, 20.0]))

@@ -50,7 +50,7 @@ def cmd_replay(args) -> int:
                        input_bounds=args.input_bounds, plausibility=not args.no_plausibility)
     try:
         result = replay(args.path, cfg, contexts=args.contexts, workers=args.workers, scheduler=args.scheduler,
-                        progress=progress_bar("replay"), sensitivity=args.sensitivity)
+                        progress=progress_bar("replay"), sensitivity=args.sensitivity, cache=not args.no_cache)
     except (HighDFormatError, ValueError) as exc:
         print(f"guardian replay: {exc}", file=sys.stderr)
         return 2
@@ -117,6 +117,9 @@ def add_commands(sub) -> None:
     p.add_argument("--input-bounds", choices=["fixed", "data"], default="fixed",
                    help="U from --u-min/--u-max, or the training inputs' quantiles (per context with --contexts)")
     p.add_argument("--rerun", type=Path, default=None, help="record the first recording with its overrides (.rrd)")
+    p.add_argument("--no-cache", action="store_true",
+                   help="parse every file afresh; by default validated recordings are kept as Parquet in "
+                        "<GUARDIAN_CACHE_DIR>/highd and read from there when the files are unchanged")
     p.add_argument("--no-plausibility", action="store_true",
                    help="read files that break the plausibility rules (frame rate, speeds, accelerations, markings)")
     p.add_argument("--json", action="store_true")

@@ -24,19 +24,18 @@ def cmd_rcis_build(args) -> int:
 
 
 def cmd_rcis_certify(args) -> int:
-    from rcis.certify import falsify
+    from rcis.certify import falsify_all
     from intention.library import SET_NAMES
     from rcis.polyhedron import Polyhedron
 
     lib = load_library(args)
     p = lib.params
     window = Polyhedron.from_box([-1e3, -1e3, -(p.h_r + 100), -1e3], [1e3, 1e3, p.h_r + 100, 1e3])
-    result = {"sets": {}}
-    for name in SET_NAMES:
-        progress = progress_bar(f"certify {name}")
-        rep = falsify(lib.models[name].system, lib.region(name), args.samples, seed=args.seed,
-                      window=window, admissible=lib.admissible(name), progress=progress)
-        result["sets"][name] = rep.as_dict()
+    largest_first = sorted(SET_NAMES, key=lambda n: -len(lib.region(n).pieces))
+    jobs = {name: {"system": lib.models[name].system, "invariant": lib.region(name), "samples": args.samples,
+                   "seed": args.seed, "window": window, "admissible": lib.admissible(name)} for name in largest_first}
+    reports = falsify_all(jobs, workers=args.workers, progress=progress_bar("certify"))
+    result = {"sets": {name: reports[name].as_dict() for name in SET_NAMES}}
     lines = [f"{n:17s} samples={r['samples']} inputs={r['inputs_checked']} "
              f"counterexamples={r['counterexamples']} split={r['split_successor_sets']}"
              for n, r in result["sets"].items()]

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
 from guardian.highd.reader import Recording
 
@@ -86,7 +85,10 @@ def to_itha(rec: Recording) -> ITHAData:
         Arrays per (vehicle, frame with a next frame) in the driving direction, and the lane-change
         events with the cars around them.
     """
-    t = rec.tracks.sort_values(["id", "frame"], kind="stable").reset_index(drop=True)
+    t = rec.tracks
+    order = np.lexsort((t["frame"].to_numpy(), t["id"].to_numpy()))
+    if np.any(order != np.arange(len(order))):  # HighD files come sorted by (id, frame); others are sorted here
+        t = t.iloc[order].reset_index(drop=True)
     dirmap = rec.tracks_meta.set_index("id")["drivingDirection"]
     ids = t["id"].to_numpy()
     frames = t["frame"].to_numpy()
@@ -132,13 +134,16 @@ def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift) 
     if not len(events):
         return []
     n_up, n_low = len(rec.upper_markings) - 1, len(rec.lower_markings) - 1
-    by_frame = pd.Series(np.arange(len(ids))).groupby([frames, direction]).indices
+    group = frames.astype(np.int64) * 4 + direction  # (frame, direction), direction in {1, 2}
+    order = np.argsort(group, kind="stable")       # rows of a group stay in increasing order
+    sorted_group = group[order]
     out = []
     for r in events:
         if abs(shift[r]) != 1:
             raise ValueError(f"recording {rec.id}: vehicle {ids[r]} changes {shift[r]} lanes between frames "
                              f"{frames[r]} and {frames[r] + 1}")
-        rows = by_frame[(frames[r], direction[r])]
+        k = group[r]
+        rows = order[np.searchsorted(sorted_group, k, "left"):np.searchsorted(sorted_group, k, "right")]
         out.append(LaneChange(rec.id, int(ids[r]), int(frames[r]), int(np.flatnonzero(rows == r)[0]),
                               "left" if shift[r] > 0 else "right", s_front[rows], v[rows], lane[rows],
                               length[rows], shift[rows], n_up if direction[r] == 1 else n_low))

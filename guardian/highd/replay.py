@@ -32,7 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from guardian.highd.convert import ITHAData, to_itha
-from guardian.highd.reader import read_recording, recording_files, recording_ids
+from guardian.highd.cache import load_recording
+from guardian.highd.reader import recording_files, recording_ids
+from rcis.cache import default_cache_dir
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
 from itha.car_following import CarFollowingParams, MaximalSet, headway_floor
 from itha.highway import EgoSupervisor, HighwayParams
@@ -79,11 +81,13 @@ class RecordingPart:
     test: ITHAData               # float32 arrays
     test_lane_changes: list
     frame_rate: int
+    from_cache: bool = False     # the recording came from the Parquet cache (guardian.highd.cache)
 
 
 def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_max: float,
-                      keep_inputs: bool = True, keep_contexts: bool = True, plausibility: bool = True) -> RecordingPart:
-    rec = read_recording(Path(folder), rid, plausibility)
+                      keep_inputs: bool = True, keep_contexts: bool = True, plausibility: bool = True,
+                      cache_dir: str | None = None) -> RecordingPart:
+    rec, from_cache = load_recording(Path(folder), rid, plausibility, cache_dir)
     data = to_itha(rec)
     too_fast = np.flatnonzero(data.v > v_max)
     if len(too_fast):
@@ -110,7 +114,7 @@ def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_
     test_set = set(test_ids.tolist())
     test_lc = [e for e in data.lane_changes if e.vehicle in test_set]
     return RecordingPart(rid, len(data), len(vehicles), len(data.lane_changes), train_d, train_ctx, train_u,
-                         train_u_ctx, test, test_lc, rec.frame_rate)
+                         train_u_ctx, test, test_lc, rec.frame_rate, from_cache)
 
 
 # ---- calibration and evaluation --------------------------------------------------------------------
@@ -270,9 +274,9 @@ def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
 
 # ---- the whole replay ---------------------------------------------------------------------------------
 def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str | None, progress,
-                    keep_inputs: bool, keep_contexts: bool):
-    args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max, keep_inputs, keep_contexts, cfg.plausibility)
-            for rid in ids]
+                    keep_inputs: bool, keep_contexts: bool, cache_dir: str | None):
+    args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max, keep_inputs, keep_contexts, cfg.plausibility,
+             cache_dir) for rid in ids]
     if scheduler:
         from dask.distributed import Client, as_completed
 
@@ -290,11 +294,18 @@ def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str
                 progress(n, len(args))
             yield part
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    with ProcessPoolExecutor(max_workers=workers, initializer=_parse_on_one_thread) as pool:
         for n, part in enumerate(pool.map(process_recording, *zip(*args)), 1):
             if progress:
                 progress(n, len(args))
             yield part
+
+
+def _parse_on_one_thread() -> None:
+    """Pool initializer: the workers are the parallelism; pyarrow's threads would only contend with them."""
+    from guardian.highd import reader
+
+    reader.PARSE_THREADS = False
 
 
 @contextmanager
@@ -319,7 +330,7 @@ def _listing(folder: Path, ids) -> list[dict]:
 
 def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), contexts: bool = False,
            workers: int = 1, scheduler: str | None = None, progress=None, sensitivity: bool = False,
-           measure_memory: bool = False) -> dict:
+           measure_memory: bool = False, cache: bool = True, cache_dir: Path | None = None) -> dict:
     """Override rates of the ITHA supervisors on HighD-format recordings (Section 7.4.3).
 
     Parameters
@@ -340,6 +351,11 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
         Also report the sensitivity table of the open choices.
     measure_memory : bool
         Report the peak traced memory.
+    cache : bool
+        Keep each validated recording in the Parquet cache and read it from there next time
+        (``guardian.highd.cache``); False parses every file.
+    cache_dir : path, optional
+        The cache's folder (default: ``<GUARDIAN_CACHE_DIR or ~/.cache/guardian>/highd``).
 
     Returns
     -------
@@ -362,8 +378,10 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     if folder.is_file():
         folder = folder.parent
     keep_inputs = sensitivity or cfg.input_bounds == "data"
-    parts = sorted(_map_recordings(folder, ids, cfg, workers, scheduler, progress, keep_inputs, contexts),
-                   key=lambda q: q.recording)
+    if cache:
+        cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir() / "highd"
+    parts = sorted(_map_recordings(folder, ids, cfg, workers, scheduler, progress, keep_inputs, contexts,
+                                   str(cache_dir) if cache else None), key=lambda q: q.recording)
     t_map = time.perf_counter() - t0
     rates = {q.frame_rate for q in parts}
     if len(rates) != 1:
@@ -376,6 +394,7 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     test = _concat([q.test for q in parts])
     events = [e for q in parts for e in q.test_lane_changes]
     counts = [(q.points, q.trajectories, q.lane_changes) for q in parts]
+    hits = sum(q.from_cache for q in parts)
     n_parts = len(parts)
     del parts  # the concatenated arrays are all that is needed from here on
     result = {
@@ -384,6 +403,7 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
         "trajectories": int(sum(c[1] for c in counts)), "lane_changes": int(sum(c[2] for c in counts)),
         "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
         "train_disturbance_samples": int(len(train.d)), "dt": dt, "config": asdict(cfg),
+        "cache": {"dir": str(cache_dir), "hits": hits, "misses": len(counts) - hits} if cache else None,
     }
     if not cfg.plausibility:
         result["plausibility"] = False  # named in the output: the reader's plausibility rules were off

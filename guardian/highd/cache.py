@@ -1,0 +1,143 @@
+"""A validated columnar cache of parsed HighD recordings (Parquet), so a second replay skips parsing.
+
+``load_recording(folder, rid, plausibility, cache_dir)`` returns what ``read_recording`` returns.
+The first time, it reads and validates the three CSV files and stores the tables as they came out
+of validation in ``<cache_dir>/<key>/`` (``tracks.parquet``, ``tracksMeta.parquet``, ``entry.json``);
+only a recording that passed every check is stored, so an entry is clean by construction.
+
+The key hashes:
+
+* the code's version: the source of the reader, the schema and this module;
+* the plausibility flag;
+* per source file: its resolved path, size, mtime (ns) and a content hash sampled from its first and
+  last MiB and 64 evenly spaced 4 KiB blocks (hashing whole HighD track files on every replay would
+  cost as much as parsing them).
+
+Editing a file changes its mtime (and almost always its size and sampled blocks), so it misses the
+cache and is read again; an edit that keeps size and mtime and touches no sampled block is the one
+thing this cannot see: ``--no-cache`` reads everything afresh. ``entry.json`` carries the key's
+inputs; an entry whose stored inputs disagree with the request, or that cannot be read, is refused
+with a warning and replaced, never used.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from guardian.highd.reader import Recording, read_recording, recording_files
+from guardian.highd.schema import FILES, file_name
+
+_CODE_FILES = ("reader.py", "schema.py", "cache.py")
+_BLOCK, _EDGE, _BLOCKS = 4096, 1 << 20, 64
+
+
+def code_version() -> str:
+    here = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for name in _CODE_FILES:
+        h.update((here / name).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def source_fingerprint(path: Path) -> dict:
+    """Resolved path, size, mtime and the sampled content hash of one source file."""
+    path = Path(path).resolve()
+    st = path.stat()
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        h.update(fh.read(_EDGE))
+        if st.st_size > 2 * _EDGE:
+            step = (st.st_size - 2 * _EDGE) // _BLOCKS
+            for k in range(_BLOCKS):
+                fh.seek(_EDGE + k * step)
+                h.update(fh.read(_BLOCK))
+        fh.seek(max(st.st_size - _EDGE, 0))
+        h.update(fh.read(_EDGE))
+    return {"path": str(path), "size": st.st_size, "mtime_ns": st.st_mtime_ns, "sampled_sha256": h.hexdigest()}
+
+
+def _request(paths: dict, plausibility: bool) -> dict:
+    return {"code": code_version(), "plausibility": plausibility,
+            "sources": {kind: source_fingerprint(p) for kind, p in sorted(paths.items())}}
+
+
+def _key(request: dict) -> str:
+    return hashlib.sha256(json.dumps(request, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def load_recording(folder: Path, recording_id: int, plausibility: bool = True,
+                   cache_dir: Path | None = None) -> tuple[Recording, bool]:
+    """A recording from the cache, or read, validated and stored.
+
+    Parameters
+    ----------
+    folder : path
+        The folder of the recording's three CSV files.
+    recording_id : int
+    plausibility : bool
+        As ``read_recording``; part of the key.
+    cache_dir : path, optional
+        The cache folder; None reads without a cache.
+
+    Returns
+    -------
+    (Recording, bool)
+        The recording, equal to ``read_recording``'s, and whether it came from the cache.
+
+    Raises
+    ------
+    HighDFormatError
+        From ``read_recording`` on the first read; a cached entry was valid when it was stored.
+    """
+    folder = Path(folder)
+    found = recording_files(folder).get(recording_id, {})
+    paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}
+    if cache_dir is None or not all(p.is_file() for p in paths.values()):
+        return read_recording(folder, recording_id, plausibility), False
+    request = _request(paths, plausibility)
+    entry = Path(cache_dir) / _key(request)
+    if entry.is_dir():
+        rec = _load(entry, request, folder, recording_id, paths)
+        if rec is not None:
+            return rec, True
+    rec = read_recording(folder, recording_id, plausibility)
+    _store(entry, request, rec)
+    return rec, False
+
+
+def _load(entry: Path, request: dict, folder: Path, recording_id: int, paths: dict) -> Recording | None:
+    try:
+        stored = json.loads((entry / "entry.json").read_text())
+        if stored["request"] != request:
+            raise ValueError("its stored sources or code version differ from this request")
+        tracks_meta = pd.read_parquet(entry / "tracksMeta.parquet")
+        tracks = pd.read_parquet(entry / "tracks.parquet")
+    except Exception as exc:  # any unreadable or foreign entry: refuse it, read the CSV files again
+        print(f"guardian: refusing the HighD cache entry {entry}: {exc}; reading recording {recording_id} "
+              f"from its CSV files", file=sys.stderr)
+        shutil.rmtree(entry, ignore_errors=True)
+        return None
+    return Recording(recording_id, folder, stored["meta"], tracks_meta, tracks, stored["upper_markings"],
+                     stored["lower_markings"], dict(paths))
+
+
+def _store(entry: Path, request: dict, rec: Recording) -> None:
+    tmp = entry.with_name(f"{entry.name}.tmp-{os.getpid()}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    rec.tracks_meta.to_parquet(tmp / "tracksMeta.parquet", index=False)
+    rec.tracks.to_parquet(tmp / "tracks.parquet", index=False)
+    meta = {k: (v.item() if hasattr(v, "item") else v) for k, v in rec.meta.items()}
+    (tmp / "entry.json").write_text(json.dumps({"request": request, "meta": meta,
+                                                "upper_markings": rec.upper_markings,
+                                                "lower_markings": rec.lower_markings}))
+    try:
+        os.replace(tmp, entry)  # atomic; another worker may have stored the same entry first
+    except OSError:
+        shutil.rmtree(tmp, ignore_errors=True)
