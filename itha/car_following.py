@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from itha import _kernels
 from rcis.cache import RegionCache, code_fingerprint
 from rcis.invariant import outside_in
 from rcis.polyhedron import Polyhedron
@@ -187,7 +188,8 @@ class MaximalSet:
             return 0.0
         if not safe(p.v_max):
             return math.inf
-        return _boundary(lambda s: not safe(s), p.v_max)[1]
+        return _kernels.lowest_safe_lead_speed(p.ego_step, p.lead_step, p.dt, float(v), float(h), p.h_min + INNER,
+                                               p.v_max, SPEED_BISECTIONS)
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         """Ego speeds v with ``(v, h, vL)`` in C."""
@@ -201,7 +203,8 @@ class MaximalSet:
             return []
         if safe(p.v_max):
             return [(0.0, p.v_max)]
-        return [(0.0, _boundary(safe, p.v_max)[0])]
+        return [(0.0, _kernels.highest_safe_speed(p.ego_step, p.lead_step, p.dt, float(h), float(vL),
+                                                  p.h_min + INNER, p.v_max, SPEED_BISECTIONS))]
 
     def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]:
         """Lead speeds v_L with ``(v, h, v_L)`` in C."""

@@ -96,3 +96,24 @@ def test_cache_is_keyed_by_parameters(tmp_path, poly):
     with pytest.raises(StaleCacheError, match="h_min"):
         load_region(files[0], {"set": "car-following", "params": __import__("dataclasses").asdict(other),
                                "tighten": 1e-6, "code": code_fingerprint(car_following.__file__)})
+
+
+@pytest.mark.parametrize("params", [CarFollowingParams(), CarFollowingParams(dt=0.04, u_min=-6.0, u_max=4.0,
+                                                                             d_min=-0.5, d_max=0.5, v_max=60.0,
+                                                                             h_min=2.0),
+                                    CarFollowingParams(u_min=-3.0, d_min=-8.0)])
+def test_compiled_bisections_are_the_python_ones_bit_for_bit(params):
+    """itha._kernels replaces the interpreted floor and bisections; every answer must be identical."""
+    from itha import _kernels
+    from itha.car_following import INNER, SPEED_BISECTIONS, _boundary, _floor_scalar
+
+    p = params
+    rng = np.random.default_rng(3)
+    thr = p.h_min + INNER
+    for v, h, vL in zip(rng.uniform(0, p.v_max, 400), rng.uniform(-5, 150, 400), rng.uniform(0, p.v_max, 400)):
+        assert _kernels.floor(p.ego_step, p.lead_step, p.dt, v, h, vL) == _floor_scalar(p, v, h, vL)
+        speed = _boundary(lambda s: _floor_scalar(p, s, h, vL) >= thr, p.v_max)[0]
+        assert _kernels.highest_safe_speed(p.ego_step, p.lead_step, p.dt, h, vL, thr, p.v_max, SPEED_BISECTIONS) == speed
+        lead = _boundary(lambda s: not _floor_scalar(p, v, h, s) >= thr, p.v_max)[1]
+        assert _kernels.lowest_safe_lead_speed(p.ego_step, p.lead_step, p.dt, v, h, thr, p.v_max,
+                                               SPEED_BISECTIONS) == lead
