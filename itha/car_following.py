@@ -168,8 +168,16 @@ class MaximalSet:
 
     def contains(self, X) -> np.ndarray:
         X = np.atleast_2d(np.asarray(X, float))
-        v, h, vL = X[:, 0], X[:, 1], X[:, 2]
         p = self.params
+        if X.shape == (1, 3):  # one state, as ITHA asks: the compiled floor, the same numbers
+            v, h, vL = (float(a) for a in X[0])
+            if not (0 <= v <= p.v_max):
+                return np.zeros(1, dtype=bool)
+            if h == math.inf:
+                return np.ones(1, dtype=bool)
+            ok = 0 <= vL <= p.v_max and _kernels.floor(p.ego_step, p.lead_step, p.dt, v, h, vL) >= p.h_min
+            return np.array([ok])
+        v, h, vL = X[:, 0], X[:, 1], X[:, 2]
         ok = (v >= 0) & (v <= p.v_max)
         free = np.isposinf(h)
         hf = np.where(free, 0.0, h)

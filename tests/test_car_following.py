@@ -117,3 +117,15 @@ def test_compiled_bisections_are_the_python_ones_bit_for_bit(params):
         lead = _boundary(lambda s: not _floor_scalar(p, v, h, s) >= thr, p.v_max)[1]
         assert _kernels.lowest_safe_lead_speed(p.ego_step, p.lead_step, p.dt, v, h, thr, p.v_max,
                                                SPEED_BISECTIONS) == lead
+
+
+def test_contains_of_one_state_is_the_vectorised_answer():
+    """The single-state fast path of MaximalSet.contains agrees with the vectorised test everywhere."""
+    rng = np.random.default_rng(8)
+    S = MaximalSet(CarFollowingParams(dt=0.04, u_min=-6.0, u_max=4.0, d_min=-0.5, d_max=0.5, v_max=60.0, h_min=2.0))
+    X = np.column_stack([rng.uniform(-5, 65, 3000), rng.uniform(-10, 200, 3000), rng.uniform(-5, 65, 3000)])
+    X[::50, 1] = np.inf
+    X[1::50] = np.nan
+    batch = S.contains(X)
+    assert batch.any() and not batch.all()
+    assert [bool(S.contains(x[None])[0]) for x in X] == batch.tolist()

@@ -114,15 +114,16 @@ def read_table(path: Path, schema: dict) -> pd.DataFrame:
     path = Path(path)
     if not path.is_file():
         raise HighDFormatError(f"{path}: file is missing")
-    _check_bytes(path)
-    header = pd.read_csv(path, nrows=0, encoding="utf-8-sig").columns.tolist()
-    missing = [c for c in schema if c not in header]
-    extra = [c for c in header if c not in schema]
-    if missing or extra:
-        parts = ([f"missing columns {missing}"] if missing else []) + ([f"unexpected columns {extra}"] if extra else [])
-        raise HighDFormatError(f"{path}: " + "; ".join(parts))
-    df = _read_clean_csv(path, schema, header)
-    if df is None:  # something to report: pandas' reader and the locators below name it precisely
+    df = _read_clean_csv(path, schema)
+    if df is None:  # something to report: the checks, pandas' reader and the locators name it precisely
+        _check_bytes(path)
+        header = pd.read_csv(path, nrows=0, encoding="utf-8-sig").columns.tolist()
+        missing = [c for c in schema if c not in header]
+        extra = [c for c in header if c not in schema]
+        if missing or extra:
+            parts = (([f"missing columns {missing}"] if missing else [])
+                     + ([f"unexpected columns {extra}"] if extra else []))
+            raise HighDFormatError(f"{path}: " + "; ".join(parts))
         dtypes = {c: ("float64" if t == INT else t) for c, t in schema.items()}  # ints checked below
         try:
             df = pd.read_csv(path, dtype=dtypes, engine="c", na_filter=True, encoding="utf-8-sig")
@@ -150,12 +151,13 @@ MAX_EXACT_INT = 2.0 ** 53  # integers read as float64 are exact up to this
 PARSE_THREADS = True  # pyarrow parses with its thread pool; replay's worker processes turn it off (one core each)
 
 
-def _read_clean_csv(path: Path, schema: dict, header: list) -> pd.DataFrame | None:
+def _read_clean_csv(path: Path, schema: dict) -> pd.DataFrame | None:
     """A clean file through pyarrow's multi-threaded CSV reader; None if anything needs a message.
 
-    Clean means: pyarrow parses every value as the schema's type, no value is missing, and the
-    columns are the header pandas read. Anything else (a bad value, a short row, an empty field, a
-    stray quote) returns None and the caller reads the file with pandas, whose messages, and the
+    Clean means: the header holds exactly the schema's columns, pyarrow parses every value as the
+    schema's type (strings checked as UTF-8, numbers are ASCII), and no value is missing. Anything
+    else (a bad value or byte, a short row, an empty field, a stray quote, a BOM, an empty file)
+    returns None and the caller runs the byte check and pandas' reader, whose messages, and the
     locators after them, name the line and column exactly as before. So a clean file is read fast
     and a dirty one is reported exactly as it always was.
     """
@@ -168,7 +170,8 @@ def _read_clean_csv(path: Path, schema: dict, header: list) -> pd.DataFrame | No
                               convert_options=pcsv.ConvertOptions(column_types=types, strings_can_be_null=True))
     except (pa.ArrowException, ValueError):
         return None
-    if table.column_names != header or table.num_rows == 0 or any(col.null_count for col in table.columns):
+    names = table.column_names
+    if sorted(names) != sorted(schema) or table.num_rows == 0 or any(col.null_count for col in table.columns):
         return None
     df = table.to_pandas()
     for c, t in schema.items():
