@@ -79,7 +79,7 @@ def _without_contained(old, new):
 
 def inside_out(system: PWASystem, seed: Region, safe: Region, max_iterations: int = 50,
                merge: bool = True, progress: Progress | None = None,
-               eps: float = SLIVER_EPS, cover_budget: int = COVER_BUDGET) -> InvariantResult:
+               eps: float = SLIVER_EPS, cover_budget: int = COVER_BUDGET, observe=None) -> InvariantResult:
     """Grow the seed RCIS by robust Pre inside the safe set until nothing new appears (inside-out, 2.11).
 
     Parameters
@@ -94,6 +94,8 @@ def inside_out(system: PWASystem, seed: Region, safe: Region, max_iterations: in
         Stop after this many iterations even if new pieces still appear.
     merge, progress, eps, cover_budget
         Convex merging of pieces, a per-iteration callback, the sliver size, and the coverage search budget.
+    observe : callable, optional
+        ``observe(iteration, region)`` after each iteration, with the RCIS so far (e.g. to measure it).
 
     Returns
     -------
@@ -117,6 +119,8 @@ def inside_out(system: PWASystem, seed: Region, safe: Region, max_iterations: in
         history.append(info)
         if progress:
             progress(info)
+        if observe:
+            observe(k, Region(pieces, seed.dim))
         if not frontier:
             converged = True
             break

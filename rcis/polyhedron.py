@@ -43,7 +43,7 @@ class Polyhedron:
         Finite, or ``+inf`` for a row that constrains nothing (dropped).
     """
 
-    __slots__ = ("A", "b", "_box", "_bbox")
+    __slots__ = ("A", "b", "_box", "_bbox", "_ball")
 
     def __init__(self, A, b):
         A = np.atleast_2d(np.asarray(A, dtype=float))
@@ -64,6 +64,7 @@ class Polyhedron:
         self.b = b
         self._box = None
         self._bbox = None
+        self._ball = None  # the Chebyshev ball at the default cap, computed once (A and b never change)
 
     # ---- constructors -------------------------------------------------
     @classmethod
@@ -142,6 +143,15 @@ class Polyhedron:
 
     def chebyshev_ball(self, radius_cap: float = CHEBYSHEV_CAP) -> ChebyshevBall:
         """Largest ball ``{c + r u : |u| <= 1}`` inside P (rows are unit norm)."""
+        if radius_cap == CHEBYSHEV_CAP and self._ball is not None:
+            c, r = self._ball
+            return ChebyshevBall(None if c is None else c.copy(), r)
+        ball = self._chebyshev_lp(radius_cap)
+        if radius_cap == CHEBYSHEV_CAP:
+            self._ball = (None if ball.center is None else ball.center.copy(), ball.radius)
+        return ball
+
+    def _chebyshev_lp(self, radius_cap: float) -> ChebyshevBall:
         m, n = self.A.shape
         A = np.hstack([self.A, np.ones((m, 1))])
         upper = np.full(n + 1, np.inf)
