@@ -84,3 +84,26 @@ def test_a_second_replay_reads_the_cache_and_says_the_same(tmp_path):
     for r in (first, second):
         r.pop("cache"), r.pop("timings"), r.pop("seconds")
     assert first == second
+
+
+@pytest.mark.parametrize("folder", SAMPLES, ids=[p.name for p in SAMPLES])
+def test_the_cached_itha_view_is_the_converted_recording(folder, tmp_path):
+    """A repeated replay skips conversion too: the stored view equals to_itha of a fresh read."""
+    import numpy as np
+
+    from guardian.highd.cache import load_itha_view
+    from guardian.highd.convert import to_itha
+
+    fresh = to_itha(read_recording(folder, 1))
+    first, ids1, hit1 = load_itha_view(folder, 1, cache_dir=tmp_path)
+    second, ids2, hit2 = load_itha_view(folder, 1, cache_dir=tmp_path)
+    assert (hit1, hit2) == (False, True) and np.array_equal(ids1, ids2)
+    for view in (first, second):
+        assert view.frame_rate == fresh.frame_rate and view.recording == fresh.recording
+        for k in ("vehicle", "frame", "direction", "lane", "v", "h", "vL", "u", "d"):
+            a, b = getattr(view, k), getattr(fresh, k)
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), k
+        assert len(view.lane_changes) == len(fresh.lane_changes) > 0
+        for x, y in zip(view.lane_changes, fresh.lane_changes):
+            for f in x.__dataclass_fields__:
+                assert np.array_equal(np.asarray(getattr(x, f)), np.asarray(getattr(y, f))), f

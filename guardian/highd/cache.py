@@ -5,6 +5,10 @@ The first time, it reads and validates the three CSV files and stores the tables
 of validation in ``<cache_dir>/<key>/`` (``tracks.parquet``, ``tracksMeta.parquet``, ``entry.json``);
 only a recording that passed every check is stored, so an entry is clean by construction.
 
+``load_itha_view`` adds the recording's ITHA view (``convert.to_itha``'s arrays and lane-change
+events, the vehicle ids and the frame rate) to the same entry, as ``itha-<version of convert.py>.npz``,
+so a repeated replay neither parses nor converts.
+
 The key hashes:
 
 * the code's version: the source of the reader, the schema and this module;
@@ -28,8 +32,10 @@ import shutil
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
+from guardian.highd.convert import ITHAData, LaneChange, to_itha
 from guardian.highd.reader import Recording, read_recording, recording_files
 from guardian.highd.schema import FILES, file_name
 
@@ -73,6 +79,86 @@ def _key(request: dict) -> str:
     return hashlib.sha256(json.dumps(request, sort_keys=True).encode()).hexdigest()[:24]
 
 
+_POINT_ARRAYS = ("vehicle", "frame", "direction", "lane", "v", "h", "vL", "u", "d")
+_EVENT_ARRAYS = ("p", "v", "lane", "length", "shift")
+
+
+def _convert_version() -> str:
+    return hashlib.sha256((Path(__file__).resolve().parent / "convert.py").read_bytes()).hexdigest()[:12]
+
+
+def load_itha_view(folder: Path, recording_id: int, plausibility: bool = True,
+                   cache_dir: Path | None = None) -> tuple[ITHAData, np.ndarray, bool]:
+    """The ITHA view of a recording (``to_itha``) and its vehicle ids, from the cache or computed.
+
+    Parameters
+    ----------
+    folder, recording_id, plausibility, cache_dir
+        As ``load_recording``.
+
+    Returns
+    -------
+    (ITHAData, ndarray, bool)
+        The view (equal to ``to_itha(read_recording(...))``), the recording's vehicle ids (tracksMeta
+        order), and whether it came from the cache without parsing or converting.
+    """
+    entry, paths, request = _entry(Path(folder), recording_id, plausibility, cache_dir)
+    view = None if entry is None else entry / f"itha-{_convert_version()}.npz"
+    if view is not None and view.is_file() and (entry / "entry.json").is_file():
+        try:
+            stored = json.loads((entry / "entry.json").read_text())
+            if stored["request"] != request:
+                raise ValueError("its stored sources or code version differ from this request")
+            return (*_read_view(view, recording_id), True)
+        except Exception as exc:
+            print(f"guardian: refusing the HighD cache entry {entry}: {exc}; reading recording {recording_id} "
+                  f"from its CSV files", file=sys.stderr)
+            shutil.rmtree(entry, ignore_errors=True)
+    rec, _ = load_recording(folder, recording_id, plausibility, cache_dir)
+    data = to_itha(rec)
+    vehicles = rec.tracks_meta["id"].to_numpy()
+    if view is not None and entry.is_dir():
+        _write_view(view, data, vehicles)
+    return data, vehicles, False
+
+
+def _write_view(path: Path, data: ITHAData, vehicles: np.ndarray) -> None:
+    events = data.lane_changes
+    sizes = np.array([len(e.p) for e in events], dtype=np.int64)
+    arrays = {k: getattr(data, k) for k in _POINT_ARRAYS}
+    arrays.update({f"event_{k}": (np.concatenate([getattr(e, k) for e in events]) if events else np.zeros(0))
+                   for k in _EVENT_ARRAYS})
+    arrays.update(event_sizes=sizes, vehicles=vehicles, frame_rate=np.array(data.frame_rate),
+                  event_meta=np.array([[e.vehicle, e.frame, e.ego, 1 if e.trigger == "left" else -1, e.n_lanes]
+                                       for e in events], dtype=np.int64).reshape(-1, 5))
+    tmp = path.with_name(f"{path.stem}.tmp-{os.getpid()}.npz")
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def _read_view(path: Path, recording_id: int) -> tuple[ITHAData, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        a = {k: z[k] for k in z.files}
+    data = ITHAData(recording_id, int(a["frame_rate"]), **{k: a[k] for k in _POINT_ARRAYS})
+    bounds = np.concatenate([[0], np.cumsum(a["event_sizes"])])
+    for i, (vehicle, frame, ego, side, n_lanes) in enumerate(a["event_meta"]):
+        s, e = bounds[i], bounds[i + 1]
+        data.lane_changes.append(LaneChange(recording_id, int(vehicle), int(frame), int(ego),
+                                            "left" if side > 0 else "right",
+                                            *(a[f"event_{k}"][s:e] for k in _EVENT_ARRAYS), int(n_lanes)))
+    return data, a["vehicles"]
+
+
+def _entry(folder: Path, recording_id: int, plausibility: bool, cache_dir):
+    """The cache entry folder, the source paths and the request; entry None without a cache."""
+    found = recording_files(folder).get(recording_id, {})
+    paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}
+    if cache_dir is None or not all(p.is_file() for p in paths.values()):
+        return None, paths, None
+    request = _request(paths, plausibility)
+    return Path(cache_dir) / _key(request), paths, request
+
+
 def load_recording(folder: Path, recording_id: int, plausibility: bool = True,
                    cache_dir: Path | None = None) -> tuple[Recording, bool]:
     """A recording from the cache, or read, validated and stored.
@@ -98,12 +184,9 @@ def load_recording(folder: Path, recording_id: int, plausibility: bool = True,
         From ``read_recording`` on the first read; a cached entry was valid when it was stored.
     """
     folder = Path(folder)
-    found = recording_files(folder).get(recording_id, {})
-    paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}
-    if cache_dir is None or not all(p.is_file() for p in paths.values()):
+    entry, paths, request = _entry(folder, recording_id, plausibility, cache_dir)
+    if entry is None:
         return read_recording(folder, recording_id, plausibility), False
-    request = _request(paths, plausibility)
-    entry = Path(cache_dir) / _key(request)
     if entry.is_dir():
         rec = _load(entry, request, folder, recording_id, paths)
         if rec is not None:

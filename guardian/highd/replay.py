@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from guardian.highd.convert import ITHAData, to_itha
-from guardian.highd.cache import load_recording
+from guardian.highd.convert import ITHAData
+from guardian.highd.cache import load_itha_view
 from guardian.highd.reader import recording_files, recording_ids
 from rcis.cache import default_cache_dir
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
@@ -87,14 +87,13 @@ class RecordingPart:
 def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_max: float,
                       keep_inputs: bool = True, keep_contexts: bool = True, plausibility: bool = True,
                       cache_dir: str | None = None) -> RecordingPart:
-    rec, from_cache = load_recording(Path(folder), rid, plausibility, cache_dir)
-    data = to_itha(rec)
+    data, vehicle_ids, from_cache = load_itha_view(Path(folder), rid, plausibility, cache_dir)
     too_fast = np.flatnonzero(data.v > v_max)
     if len(too_fast):
         k = too_fast[0]
         raise ValueError(f"recording {rid}: vehicle {data.vehicle[k]} at frame {data.frame[k]} drives "
                          f"{data.v[k]:.2f} m/s, above v_max = {v_max} (raise --v-max)")
-    vehicles = np.sort(rec.tracks_meta["id"].to_numpy())
+    vehicles = np.sort(vehicle_ids)
     draw = np.random.default_rng([seed, rid]).uniform(size=len(vehicles))
     test_ids = vehicles[draw < test_fraction]
     is_test = np.isin(data.vehicle, test_ids)
@@ -114,7 +113,7 @@ def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_
     test_set = set(test_ids.tolist())
     test_lc = [e for e in data.lane_changes if e.vehicle in test_set]
     return RecordingPart(rid, len(data), len(vehicles), len(data.lane_changes), train_d, train_ctx, train_u,
-                         train_u_ctx, test, test_lc, rec.frame_rate, from_cache)
+                         train_u_ctx, test, test_lc, data.frame_rate, from_cache)
 
 
 # ---- calibration and evaluation --------------------------------------------------------------------
@@ -274,18 +273,17 @@ def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
 
 # ---- the whole replay ---------------------------------------------------------------------------------
 def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str | None, progress,
-                    keep_inputs: bool, keep_contexts: bool, cache_dir: str | None):
+                    keep_inputs: bool, keep_contexts: bool, cache_dir: str | None, pool=None):
     args = [(str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max, keep_inputs, keep_contexts, cfg.plausibility,
              cache_dir) for rid in ids]
-    if scheduler:
-        from dask.distributed import Client, as_completed
+    if scheduler:  # pool is the dask.distributed Client of _pool
+        from dask.distributed import as_completed
 
-        with Client(scheduler) as client:
-            futures = {client.submit(process_recording, *a, pure=False): a[1] for a in args}
-            for n, fut in enumerate(as_completed(futures), 1):
-                if progress:
-                    progress(n, len(args))
-                yield fut.result()
+        futures = {pool.submit(process_recording, *a, pure=False): a[1] for a in args}
+        for n, fut in enumerate(as_completed(futures), 1):
+            if progress:
+                progress(n, len(args))
+            yield fut.result()
         return
     if workers <= 1:
         for n, a in enumerate(args, 1):
@@ -294,11 +292,10 @@ def _map_recordings(folder, ids, cfg: ReplayConfig, workers: int, scheduler: str
                 progress(n, len(args))
             yield part
         return
-    with ProcessPoolExecutor(max_workers=workers, initializer=_parse_on_one_thread) as pool:
-        for n, part in enumerate(pool.map(process_recording, *zip(*args)), 1):
-            if progress:
-                progress(n, len(args))
-            yield part
+    for n, part in enumerate(pool.map(process_recording, *zip(*args)), 1):
+        if progress:
+            progress(n, len(args))
+        yield part
 
 
 def _parse_on_one_thread() -> None:
@@ -316,7 +313,7 @@ def _pool(workers: int, scheduler: str | None):
         with Client(scheduler) as client:
             yield client
     elif workers > 1:
-        with ProcessPoolExecutor(max_workers=workers) as ex:
+        with ProcessPoolExecutor(max_workers=workers, initializer=_parse_on_one_thread) as ex:
             yield ex
     else:
         yield None
@@ -380,35 +377,35 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     keep_inputs = sensitivity or cfg.input_bounds == "data"
     if cache:
         cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir() / "highd"
-    parts = sorted(_map_recordings(folder, ids, cfg, workers, scheduler, progress, keep_inputs, contexts,
-                                   str(cache_dir) if cache else None), key=lambda q: q.recording)
-    t_map = time.perf_counter() - t0
-    rates = {q.frame_rate for q in parts}
-    if len(rates) != 1:
-        raise ValueError(f"recordings have different frame rates {sorted(rates)}; replay them separately")
-    dt = 1.0 / rates.pop()
-    train = Training(np.concatenate([q.train_d for q in parts]),
-                     np.concatenate([q.train_ctx for q in parts]),
-                     np.concatenate([q.train_u for q in parts]),
-                     np.concatenate([q.train_u_ctx for q in parts]))
-    test = _concat([q.test for q in parts])
-    events = [e for q in parts for e in q.test_lane_changes]
-    counts = [(q.points, q.trajectories, q.lane_changes) for q in parts]
-    hits = sum(q.from_cache for q in parts)
-    n_parts = len(parts)
-    del parts  # the concatenated arrays are all that is needed from here on
-    result = {
-        "recordings": _listing(folder, ids),
-        "data_points": int(sum(c[0] for c in counts)),
-        "trajectories": int(sum(c[1] for c in counts)), "lane_changes": int(sum(c[2] for c in counts)),
-        "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
-        "train_disturbance_samples": int(len(train.d)), "dt": dt, "config": asdict(cfg),
-        "cache": {"dir": str(cache_dir), "hits": hits, "misses": len(counts) - hits} if cache else None,
-    }
-    if not cfg.plausibility:
-        result["plausibility"] = False  # named in the output: the reader's plausibility rules were off
-    t1 = time.perf_counter()
-    with _pool(workers, scheduler) as pool:
+    with _pool(workers, scheduler) as pool:  # one pool for reading and for the evaluation (each costs ~1 s)
+        parts = sorted(_map_recordings(folder, ids, cfg, workers, scheduler, progress, keep_inputs, contexts,
+                                       str(cache_dir) if cache else None, pool), key=lambda q: q.recording)
+        t_map = time.perf_counter() - t0
+        rates = {q.frame_rate for q in parts}
+        if len(rates) != 1:
+            raise ValueError(f"recordings have different frame rates {sorted(rates)}; replay them separately")
+        dt = 1.0 / rates.pop()
+        train = Training(np.concatenate([q.train_d for q in parts]),
+                         np.concatenate([q.train_ctx for q in parts]),
+                         np.concatenate([q.train_u for q in parts]),
+                         np.concatenate([q.train_u_ctx for q in parts]))
+        test = _concat([q.test for q in parts])
+        events = [e for q in parts for e in q.test_lane_changes]
+        counts = [(q.points, q.trajectories, q.lane_changes) for q in parts]
+        hits = sum(q.from_cache for q in parts)
+        n_parts = len(parts)
+        del parts  # the concatenated arrays are all that is needed from here on
+        result = {
+            "recordings": _listing(folder, ids),
+            "data_points": int(sum(c[0] for c in counts)),
+            "trajectories": int(sum(c[1] for c in counts)), "lane_changes": int(sum(c[2] for c in counts)),
+            "test_data_points": int(len(test.v)), "test_lane_changes": len(events),
+            "train_disturbance_samples": int(len(train.d)), "dt": dt, "config": asdict(cfg),
+            "cache": {"dir": str(cache_dir), "hits": hits, "misses": len(counts) - hits} if cache else None,
+        }
+        if not cfg.plausibility:
+            result["plausibility"] = False  # named in the output: the reader's plausibility rules were off
+        t1 = time.perf_counter()
         result.update(evaluate(cfg, dt, train, test, events, contexts, pool))
         if sensitivity:
             result["sensitivity"] = sensitivity_table(cfg, dt, train, test, events, pool)
