@@ -37,26 +37,26 @@ def floor(ae, aL, dt, v, h, vL):
 
 
 @njit(cache=True)
+def _bisect(ae, aL, dt, a, b, threshold, top, iterations, over_lead):
+    """Bisection on ``[0, top]`` of ``floor >= threshold``, over the ego speed (state ``(s, a, b)`` =
+    ``(v, h, vL)``) or over the lead speed (``(a, b, s)`` = ``(v, h, vL)``); ``(last safe, first unsafe)``
+    for the ego, ``(last unsafe, first safe)`` for the lead, as ``_boundary`` gives them."""
+    lo, hi = 0.0, top
+    for _ in range(iterations):
+        mid = (lo + hi) / 2
+        safe = floor(ae, aL, dt, a, b, mid) >= threshold if over_lead else floor(ae, aL, dt, mid, a, b) >= threshold
+        if safe != over_lead:
+            lo = mid
+        else:
+            hi = mid
+    return lo, hi
+
+
 def highest_safe_speed(ae, aL, dt, h, vL, threshold, top, iterations):
-    """Bisection for the last ego speed with ``floor >= threshold`` (``_boundary(safe, top)[0]``)."""
-    lo, hi = 0.0, top
-    for _ in range(iterations):
-        mid = (lo + hi) / 2
-        if floor(ae, aL, dt, mid, h, vL) >= threshold:
-            lo = mid
-        else:
-            hi = mid
-    return lo
+    """The last ego speed with ``floor >= threshold`` (``_boundary(safe, top)[0]``)."""
+    return _bisect(ae, aL, dt, h, vL, threshold, top, iterations, False)[0]
 
 
-@njit(cache=True)
 def lowest_safe_lead_speed(ae, aL, dt, v, h, threshold, top, iterations):
-    """Bisection for the first lead speed with ``floor >= threshold`` (``_boundary(not safe, top)[1]``)."""
-    lo, hi = 0.0, top
-    for _ in range(iterations):
-        mid = (lo + hi) / 2
-        if not (floor(ae, aL, dt, v, h, mid) >= threshold):
-            lo = mid
-        else:
-            hi = mid
-    return hi
+    """The first lead speed with ``floor >= threshold`` (``_boundary(not safe, top)[1]``)."""
+    return _bisect(ae, aL, dt, v, h, threshold, top, iterations, True)[1]
