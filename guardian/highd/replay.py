@@ -393,7 +393,6 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
         events = [e for q in parts for e in q.test_lane_changes]
         counts = [(q.points, q.trajectories, q.lane_changes) for q in parts]
         hits = sum(q.from_cache for q in parts)
-        n_parts = len(parts)
         del parts  # the concatenated arrays are all that is needed from here on
         result = {
             "recordings": _listing(folder, ids),
