@@ -73,6 +73,10 @@ def cmd_replay(args) -> int:
             f"ordered {100 * r['responsibility_ordered']:.2f} %")
     if args.contexts:
         text += f"\nself-safety with per-context sets: {100 * result['contexts']['self_safety']:.2f} %"
+    cache = result.get("cache")
+    if cache:
+        text += (f"\n{cache['hits']} of {cache['hits'] + cache['misses']} recording(s) read from the cache "
+                 f"{cache['dir']} (--no-cache parses every file)")
     emit(result, args.json, text)
     return 0
 
