@@ -21,7 +21,7 @@ from typing import Callable
 
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PRE_MARGIN, PWASystem
-from rcis.region import SLIVER_EPS, Region, _box_inside, merge_convex
+from rcis.region import SLIVER_EPS, Region, merge_convex
 from rcis.tolerances import FIXED_POINT_EPS  # noqa: F401 (re-exported)
 
 Progress = Callable[[dict], None]
@@ -73,8 +73,9 @@ def _not_covered(candidates, pieces, dim, eps, budget):
 
 def _without_contained(old, new):
     """Old pieces that no single new piece contains."""
+    new = Region(new, old[0].dim) if old else None
     return [Q for Q in old
-            if not any(_box_inside(Q, N, 0.0) and N.contains_polyhedron(Q, tol=0.0) for N in new)]
+            if not any(N.contains_polyhedron(Q, tol=0.0) for N in new.pieces_whose_box_holds(Q, 0.0))]
 
 
 def inside_out(system: PWASystem, seed: Region, safe: Region, max_iterations: int = 50,

@@ -109,6 +109,11 @@ class InequalityLP:
     def _solve(self) -> LPResult:
         self._h.run()
         status = self._h.getModelStatus()
+        result = self._decided(status)
+        return result if result is not None else self._retry(status)
+
+    def _decided(self, status) -> LPResult | None:
+        """The result for a status HiGHS decided (None when it could not decide)."""
         if status == _STATUS.kOptimal:
             sol = np.array(self._h.getSolution().col_value)
             return LPResult("optimal", self._h.getInfo().objective_function_value, sol)
@@ -123,19 +128,26 @@ class InequalityLP:
             if self._h.getModelStatus() == _STATUS.kOptimal:
                 return LPResult("unbounded", np.inf, None)
             return LPResult("infeasible", -np.inf, None)
-        return self._retry(status)
+        return None
 
     def _retry(self, status) -> LPResult:
-        """Re-solve a model HiGHS could not decide: with presolve, then interior point."""
-        for option, value in (("presolve", "on"), ("solver", "ipm")):
-            self._h.setOptionValue(option, value)
-            self._h.clearSolver()
-            self._h.run()
-            status = self._h.getModelStatus()
-            if status in (_STATUS.kOptimal, _STATUS.kInfeasible, _STATUS.kUnbounded):
-                self._h.setOptionValue("presolve", "off")
-                self._h.setOptionValue("solver", "choose")
-                return self._solve()
+        """Re-solve a model HiGHS could not decide: with presolve, then interior point.
+
+        The answer is read from the run that decided it (re-running with the default options could
+        fail again the same way), then the options are put back.
+        """
+        try:
+            for option, value in (("presolve", "on"), ("solver", "ipm")):
+                self._h.setOptionValue(option, value)
+                self._h.clearSolver()
+                self._h.run()
+                status = self._h.getModelStatus()
+                result = self._decided(status)
+                if result is not None:
+                    return result
+        finally:
+            self._h.setOptionValue("presolve", "off")
+            self._h.setOptionValue("solver", "choose")
         raise LPError(f"HiGHS returned {self._h.modelStatusToString(status)} "
                       f"on a {self.m}x{self.n} LP, also with presolve and interior point")
 

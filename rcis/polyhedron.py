@@ -19,7 +19,7 @@ import numpy as np
 
 from rcis.lp import InequalityLP
 from rcis.tolerances import (  # noqa: F401 (re-exported)
-    CHEBYSHEV_CAP, FM_ROUNDING, GENERATOR_TOL, INCLUSION_TOL, REDUNDANCY_TOL, ROW_NORM_EPS)
+    CERTIFICATE_MARGIN, CHEBYSHEV_CAP, FM_ROUNDING, GENERATOR_TOL, INCLUSION_TOL, REDUNDANCY_TOL, ROW_NORM_EPS)
 
 
 
@@ -43,7 +43,7 @@ class Polyhedron:
         Finite, or ``+inf`` for a row that constrains nothing (dropped).
     """
 
-    __slots__ = ("A", "b", "_box", "_bbox", "_ball")
+    __slots__ = ("A", "b", "_box", "_bbox", "_ball", "_points", "_deep")
 
     def __init__(self, A, b):
         A = np.atleast_2d(np.asarray(A, dtype=float))
@@ -65,6 +65,8 @@ class Polyhedron:
         self._box = None
         self._bbox = None
         self._ball = None  # the Chebyshev ball at the default cap, computed once (A and b never change)
+        self._points = None  # the bounding box's LP maximisers: points of P, for cheap support bounds
+        self._deep = None  # a point with a ball thicker than some eps inside P (found by ``has_ball``)
 
     # ---- constructors -------------------------------------------------
     @classmethod
@@ -83,6 +85,17 @@ class Polyhedron:
         P = cls(A, b)
         P._box = (lower.copy(), upper.copy())
         return P
+
+    @classmethod
+    def _of_unit_rows(cls, A: np.ndarray, b: np.ndarray) -> "Polyhedron":
+        """Rows already unit-norm and finite (taken from other polyhedra): no checks, no normalising."""
+        P = cls.__new__(cls)
+        P.A, P.b = A, b
+        P._box = P._bbox = P._ball = P._points = P._deep = None
+        return P
+
+    def _is_empty_marker(self) -> bool:
+        return self.A.shape[0] == 1 and self.b[0] == -1.0 and not self.A.any()
 
     @classmethod
     def universe(cls, n: int) -> "Polyhedron":
@@ -173,8 +186,14 @@ class Polyhedron:
             return True
         if Q._bbox is not None and np.any(Q._bbox[0] > Q._bbox[1]):
             return True  # Q is empty
+        lower, upper = Q.support_bounds(self.A)
+        if np.any(lower > self.b + tol + CERTIFICATE_MARGIN):
+            return False  # a point of Q lies outside a row (and Q is not empty)
+        undecided = ~(upper <= self.b + tol - CERTIFICATE_MARGIN)
+        if not np.any(undecided):
+            return True
         lp = InequalityLP(Q.A, Q.b)
-        for a, bi in zip(self.A, self.b):
+        for a, bi in zip(self.A[undecided], self.b[undecided]):
             res = lp.maximize(a)
             if res.status == "infeasible":
                 return True
@@ -186,9 +205,80 @@ class Polyhedron:
         """``(lower, upper)`` per coordinate (infinite where unbounded); cached."""
         if self._bbox is None:
             eye = np.eye(self.dim)
-            values = self.support_many(np.vstack([eye, -eye]))
+            D = np.vstack([eye, -eye])
+            if self._box is not None:
+                values = self.support_many(D)
+            else:
+                lp = InequalityLP(self.A, self.b)
+                results = [lp.maximize(d) for d in D]
+                values = np.array([r.value for r in results])
+                points = [r.x for r in results if r.x is not None]
+                self._points = np.array(points) if points else None
             self._bbox = (-values[self.dim:], values[:self.dim])
         return self._bbox
+
+    # ---- cheap certificates (no LP) ---------------------------------
+    def known_points(self) -> np.ndarray:
+        """Points known to lie in P (to LP accuracy) without solving anything new: the Chebyshev
+        centre, a deep point, the bounding box's maximisers, whichever have been computed."""
+        pts = [p for p in (self._ball[0] if self._ball else None, self._deep) if p is not None]
+        if self._points is not None:
+            pts.extend(self._points)
+        return np.array(pts) if pts else np.zeros((0, self.dim))
+
+    def interior_point(self):
+        """A point of P with a ball around it inside P, if one is known (else None; no LP)."""
+        if self._ball is not None and self._ball[1] > 0:
+            return self._ball[0]
+        return self._deep
+
+    def support_bounds(self, directions) -> tuple[np.ndarray, np.ndarray]:
+        """``(lower, upper)`` bounds on ``h_P(d)`` for each row d, without an LP.
+
+        Below: the best known point of P (``known_points``; -inf if none). Above: the bounding box
+        (+inf until it is computed).
+        """
+        D = np.atleast_2d(np.asarray(directions, dtype=float))
+        pts = self.known_points()
+        lower = (D @ pts.T).max(axis=1) if len(pts) else np.full(len(D), -np.inf)
+        box = self._box if self._box is not None else self._bbox
+        if box is None:
+            return lower, np.full(len(D), np.inf)
+        lo, hi = box
+        with np.errstate(invalid="ignore"):
+            terms = np.where(D > 0, D * hi, np.where(D < 0, D * lo, 0.0))
+        return lower, terms.sum(axis=1)
+
+    def exceeds(self, directions, limits) -> np.ndarray:
+        """``h_P(d_i) > limits_i`` for each row ``d_i`` of ``directions``.
+
+        ``support_bounds`` decide the rows they clear by ``CERTIFICATE_MARGIN``; an LP decides the rest,
+        so the answer is ``support_many(directions) > limits`` up to the LP's error.
+        """
+        D = np.atleast_2d(np.asarray(directions, dtype=float))
+        limits = np.broadcast_to(np.asarray(limits, dtype=float), (len(D),))
+        lower, upper = self.support_bounds(D)
+        out = lower > limits + CERTIFICATE_MARGIN
+        undecided = ~out & ~(upper <= limits - CERTIFICATE_MARGIN)
+        if np.any(undecided):
+            out[undecided] = self.support_many(D[undecided]) > limits[undecided]
+        return out
+
+    def has_ball(self, eps: float, hints=()) -> bool:
+        """The Chebyshev radius exceeds ``eps``.
+
+        A hint point whose slack in every row exceeds ``eps`` by ``CERTIFICATE_MARGIN`` proves it
+        without an LP (and is remembered as a deep point); otherwise the Chebyshev LP decides.
+        """
+        if self._ball is None:
+            for p in hints:
+                if p is None:
+                    continue
+                slack = np.min(self.b - self.A @ p) if self.n_constraints else np.inf
+                if slack > eps + CERTIFICATE_MARGIN:
+                    self._deep = p
+                    return True
+        return self.chebyshev_ball().radius > eps
 
     def may_intersect(self, Q: "Polyhedron", tol: float = 1e-7) -> bool:
         """False when the bounding boxes are apart (then P ∩ Q is empty)."""
@@ -200,7 +290,10 @@ class Polyhedron:
     def intersect(self, Q: "Polyhedron") -> "Polyhedron":
         if Q.dim != self.dim:
             raise ValueError(f"intersect: dimensions {self.dim} and {Q.dim}")
-        return Polyhedron(np.vstack([self.A, Q.A]), np.concatenate([self.b, Q.b]))
+        A, b = np.vstack([self.A, Q.A]), np.concatenate([self.b, Q.b])
+        if self._is_empty_marker() or Q._is_empty_marker():
+            return Polyhedron(A, b)
+        return Polyhedron._of_unit_rows(A, b)
 
     def preimage(self, M, t=None) -> "Polyhedron":
         """``{z : M z + t in P}``: rows ``A M z <= b - A t``."""
@@ -586,7 +679,9 @@ def _implied_by_hull(A, b, slack, c, hull, dropped, kept) -> np.ndarray:
             break
         rows, t_exit, simplex = rows[live], t_exit[live], simplex[live]
         if reach_box is None:
-            reach_box = _kept_radius(A[kept], b[kept], c)
+            reach_box = _hull_reach(points, hull, kept)
+            if not np.isfinite(reach_box):
+                reach_box = _kept_radius(A[kept], b[kept], c)
         proven[rows] = _certified(A, b, points, slack, c, dropped[rows], simplex, t_exit, reach_box)
     return proven
 
@@ -605,6 +700,47 @@ def _certified(A, b, points, slack, c, rows, simplex, t_exit, reach_box) -> np.n
     with np.errstate(invalid="ignore"):
         bound = np.einsum("kj,kj->k", nu, b[simplex]) + residual @ c + np.abs(residual).sum(axis=1) * reach_box
     return usable & (lam.sum(axis=1) <= 1.0 + 1e-9) & (bound <= b[rows] + REDUNDANCY_TOL)
+
+
+def _hull_reach(points, hull, kept) -> float:
+    """An upper bound on ``max |y|_inf`` over ``{y : p_j^T y <= 1, j kept}`` from the hull (no LP).
+
+    Along each axis direction d the ray from the origin leaves the hull through a simplex S at
+    ``t d = sum_j mu_j p_j + r`` (``mu >= 0``, r the residual evaluated on the data); for y in the set,
+    ``t d^T y <= sum mu + |r|_1 R`` with ``R = max |y|_inf``, hence ``R <= alpha / (1 - beta)`` with
+    ``alpha = max (sum mu) / t`` and ``beta = max |r|_1 / t``. inf when a direction finds no usable
+    simplex (the caller then solves the LPs).
+    """
+    n = points.shape[1]
+    normals, offsets = hull.equations[:, :n], hull.equations[:, n]
+    D = np.vstack([np.eye(n), -np.eye(n)])
+    reach = D @ normals.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(reach > 0, -offsets / reach, np.inf)
+    order = np.argsort(t, axis=1)[:, :_CERTIFICATE_TRIES]
+    alpha = np.full(len(D), np.inf)
+    beta = np.full(len(D), np.inf)
+    for rank in range(order.shape[1]):
+        rows = np.flatnonzero(~np.isfinite(alpha))
+        if rows.size == 0:
+            break
+        facet = order[rows, rank]
+        t_exit = t[rows, facet]
+        simplex = hull.simplices[facet]
+        live = np.isfinite(t_exit) & (t_exit > 0) & np.all(kept[simplex], axis=1)
+        rows, t_exit, simplex = rows[live], t_exit[live], simplex[live]
+        if rows.size == 0:
+            continue
+        M = np.transpose(points[simplex], (0, 2, 1))
+        usable = np.abs(np.linalg.det(M)) > 1e-300
+        M[~usable] = np.eye(n)
+        mu = np.maximum(np.linalg.solve(M, (t_exit[:, None] * D[rows])[..., None])[..., 0], 0.0)
+        residual = t_exit[:, None] * D[rows] - np.einsum("kj,kjn->kn", mu, points[simplex])
+        ok = usable & np.isfinite(mu).all(axis=1)
+        alpha[rows[ok]] = mu[ok].sum(axis=1) / t_exit[ok]
+        beta[rows[ok]] = np.abs(residual[ok]).sum(axis=1) / t_exit[ok]
+    a, bt = alpha.max(), beta.max()
+    return float(a / (1.0 - bt)) if np.isfinite(a) and bt < 0.5 else np.inf
 
 
 def _kept_radius(A: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:

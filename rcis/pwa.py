@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rcis.polyhedron import Polyhedron
-from rcis.tolerances import PIECE_TOL, PRE_MARGIN, RUNTIME_MARGIN  # noqa: F401 (re-exported)
+from rcis.tolerances import CERTIFICATE_MARGIN, PIECE_TOL, PRE_MARGIN, RUNTIME_MARGIN  # noqa: F401 (re-exported)
 
 
 
@@ -104,6 +104,7 @@ class PWASystem:
         self._domain_b = np.concatenate([p.domain.b for p in self.pieces])
         self._domain_strict = np.concatenate([p.strict for p in self.pieces])
         self._domain_owner = np.repeat(np.arange(len(self.pieces)), [p.domain.n_constraints for p in self.pieces])
+        self._domain_boxes: dict = {}  # (within, margin) -> per piece, the box of D_j ⊖ margin ∩ X ∩ within
 
     def __repr__(self) -> str:
         return f"PWASystem({self.name!r}, pieces={len(self.pieces)})"
@@ -197,6 +198,8 @@ class PWASystem:
         out = []
         inputs = np.arange(self.n_x, self.n_x + self.n_u)
         for j in range(len(self.pieces)):
+            if self._misses_target(j, target, within, margin):
+                continue
             lifted = self.lifted_pre(j, target, within, margin)
             if lifted.chebyshev_ball().radius <= min_radius:
                 continue
@@ -204,6 +207,34 @@ class PWASystem:
             if P.chebyshev_ball().radius > min_radius:
                 out.append(P)
         return out
+
+    def _misses_target(self, j: int, target: Polyhedron, within: Polyhedron | None, margin: float) -> bool:
+        """No state of piece j's domain box and input of U's box reaches some robust target row.
+
+        A test without an LP that the lifted set of ``lifted_pre`` is empty: the lowest value of one
+        row ``G_i (A_j x + B_j u + c_j)`` over the boxes exceeds its bound by ``CERTIFICATE_MARGIN``.
+        """
+        lo, hi = self._domain_box(j, within, margin)
+        if np.any(lo > hi):
+            return True
+        p = self.pieces[j]
+        G, g = self._robust_target_rows(p, target, margin)
+        ulo, uhi = self.input_set.bounding_box()
+        M = np.hstack([G @ p.A, G @ p.B])
+        low, high = np.concatenate([lo, ulo]), np.concatenate([hi, uhi])
+        with np.errstate(invalid="ignore"):
+            least = np.where(M > 0, M * low, np.where(M < 0, M * high, 0.0)).sum(axis=1) + G @ p.c
+        return bool(np.any(least > g + CERTIFICATE_MARGIN))
+
+    def _domain_box(self, j: int, within: Polyhedron | None, margin: float):
+        key = (None if within is None else (within.A.tobytes(), within.b.tobytes()), margin)
+        if key not in self._domain_boxes:
+            boxes = []
+            for p in self.pieces:
+                region = p.closed_domain_shrunk(margin).intersect(self.state_set)
+                boxes.append((region if within is None else region.intersect(within)).bounding_box())
+            self._domain_boxes[key] = boxes
+        return self._domain_boxes[key][j]
 
     # ---- checks ----------------------------------------------------------
     def check_successor_box(self, tol: float = 1e-9) -> list[str]:

@@ -13,7 +13,7 @@ import numpy as np
 
 from rcis import _kernels
 from rcis.polyhedron import Polyhedron
-from rcis.tolerances import SLIVER_EPS  # noqa: F401 (re-exported)
+from rcis.tolerances import CERTIFICATE_MARGIN, SLIVER_EPS  # noqa: F401 (re-exported)
 
 
 
@@ -31,6 +31,7 @@ class Region:
                 raise ValueError(f"Region: piece {i} has dimension {P.dim}, expected {dim}")
         self.dim = dim
         self._stack = None
+        self._boxes = None
 
     def __len__(self) -> int:
         return len(self.pieces)
@@ -56,6 +57,23 @@ class Region:
             starts = np.cumsum([0] + [P.n_constraints for P in self.pieces]).astype(np.int64)
             self._stack = (np.ascontiguousarray(A), np.ascontiguousarray(b), starts)
         return self._stack
+
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pieces' bounding boxes stacked: ``(lower, upper)``, each of shape (pieces, dim)."""
+        if self._boxes is None:
+            boxes = [P.bounding_box() for P in self.pieces]
+            self._boxes = (np.array([lo for lo, _ in boxes]).reshape(-1, self.dim),
+                           np.array([hi for _, hi in boxes]).reshape(-1, self.dim))
+        return self._boxes
+
+    def pieces_whose_box_holds(self, P: Polyhedron, tol: float) -> list[Polyhedron]:
+        """Pieces whose bounding box holds P's (to tol): the only ones that can contain P."""
+        if not self.pieces:
+            return []
+        lo, hi = self.boxes()
+        plo, phi = P.bounding_box()
+        holds = np.all(plo >= lo - tol, axis=1) & np.all(phi <= hi + tol, axis=1)
+        return [self.pieces[i] for i in np.flatnonzero(holds)]
 
     # ---- membership ---------------------------------------------------
     def piece_index(self, X, tol: float = 1e-9):
@@ -92,13 +110,14 @@ class Region:
         undecided search answers False: callers use this only where a wrong
         "not covered" costs work, never soundness.
         """
-        if any(_box_inside(P, Q, eps) and Q.contains_polyhedron(P, eps) for Q in self.pieces):
+        if any(Q.contains_polyhedron(P, eps) for Q in self.pieces_whose_box_holds(P, eps)):
             return True
         if P.chebyshev_ball().radius <= eps:
             return True
         near = [Q for Q in self.pieces if P.may_intersect(Q)]
+        rows = Region(near, self.dim).stacked()
         try:
-            return not _has_uncovered_part(P, near, 0, eps, [budget if budget is not None else -1])
+            return not _has_uncovered_part(P, near, 0, eps, [budget if budget is not None else -1], rows)
         except _BudgetExhausted:
             return False
 
@@ -127,9 +146,26 @@ class Region:
         return all(other.covers(P, eps) for P in self.pieces)
 
     def witness_outside(self, other: "Region", eps: float = SLIVER_EPS):
-        """A point of self outside other (the centre of the fattest leftover), or None."""
-        best = None
+        """A point of self outside other, with a ball thicker than eps around it in ``self \\ other``; or None.
+
+        The probes of ``_deepest_probe`` first (the one with the largest such ball, no LP); only when
+        none clears eps, the centre of the fattest leftover of the exact difference.
+        """
+        rows = other.stacked()
+        best_point, best_radius = None, -np.inf
         for P in self.pieces:
+            if P.chebyshev_ball().radius <= eps:
+                continue
+            P.bounding_box()
+            point, radius = _deepest_probe(P, rows, 0)
+            if radius > best_radius:
+                best_point, best_radius = point, radius
+        if best_radius > eps + CERTIFICATE_MARGIN:
+            return best_point
+        best = None
+        for P in sorted(self.pieces, key=lambda P: -P.chebyshev_ball().radius):
+            if best is not None and P.chebyshev_ball().radius <= best.radius:
+                break  # a leftover of P lies in P: no fatter one can follow
             for piece in other.difference(P, eps):
                 ball = piece.chebyshev_ball()
                 if best is None or ball.radius > best.radius:
@@ -146,37 +182,74 @@ class _BudgetExhausted(Exception):
     pass
 
 
-def _has_uncovered_part(R: Polyhedron, pieces, start: int, eps: float, budget: list) -> bool:
-    """Depth-first search for a part of R (with interior) outside pieces[start:]."""
+def _has_uncovered_part(R: Polyhedron, pieces, start: int, eps: float, budget: list, rows) -> bool:
+    """Depth-first search for a part of R (with interior) outside pieces[start:] (``rows``: theirs, stacked)."""
     budget[0] -= 1
     if budget[0] == 0:
         raise _BudgetExhausted
+    if _probe_finds_uncovered_ball(R, rows, start, eps):
+        return True
     for q in range(start, len(pieces)):
         Q = pieces[q]
-        if not R.may_intersect(Q) or R.intersect(Q).chebyshev_ball().radius <= eps:
+        if not _overlap(R, Q, eps):
             continue
-        return any(_has_uncovered_part(F, pieces, q + 1, eps, budget)
-                   for F in _subtract(R, Q, eps, tidy=False))
+        return any(_has_uncovered_part(F, pieces, q + 1, eps, budget, rows)
+                   for F in _subtract(R, Q, eps, tidy=False, overlapping=True))
     return True
 
 
-def _box_inside(P: Polyhedron, Q: Polyhedron, tol: float) -> bool:
-    """Bounding box of P inside that of Q (necessary for P ⊆ Q)."""
-    lo1, hi1 = P.bounding_box()
-    lo2, hi2 = Q.bounding_box()
-    return bool(np.all(lo1 >= lo2 - tol) and np.all(hi1 <= hi2 + tol))
+_PROBE_STEPS = np.array([0.0, 0.5, 0.8, 0.95, 0.99])
 
 
-def _subtract(R: Polyhedron, Q: Polyhedron, eps: float, tidy: bool = True) -> list[Polyhedron]:
-    """``R \\ Q`` split along the rows of Q that cut R."""
-    if not R.may_intersect(Q) or R.intersect(Q).chebyshev_ball().radius <= eps:
+def _probe_finds_uncovered_ball(R: Polyhedron, rows, start: int, eps: float) -> bool:
+    """A ball thicker than eps inside R and outside pieces[start:], found without an LP (``_deepest_probe``).
+
+    Sound whatever the search would say: that answer only keeps a candidate (a piece of Pre inside
+    the safe set) that the search might have dropped.
+    """
+    return _deepest_probe(R, rows, start)[1] > eps + CERTIFICATE_MARGIN
+
+
+def _deepest_probe(R: Polyhedron, rows, start: int):
+    """``(point, radius)``: the probe of R with the largest ball inside R and outside pieces[start:].
+
+    Probes lie between R's interior point and its known points (``Polyhedron.known_points``). A probe
+    with slack s in R and, for every piece, some row it violates by at least d, is the centre of a
+    ball of radius min(s, d) in R and outside the union. ``(None, -inf)`` when R has no known
+    interior point or a piece has no rows (the whole space).
+    """
+    c = R.interior_point()
+    A, b, starts = rows
+    if c is None or np.any(np.diff(starts[start:]) == 0):
+        return None, -np.inf
+    X = R.known_points()
+    probes = (c + _PROBE_STEPS[:, None, None] * (X[None, :, :] - c)).reshape(-1, R.dim)
+    radius = np.min(R.b - probes @ R.A.T, axis=1, initial=np.inf)
+    first = starts[start]
+    if first < len(b):
+        violation = probes @ A[first:].T - b[first:]
+        radius = np.minimum(radius, np.maximum.reduceat(violation, starts[start:-1] - first, axis=1).min(axis=1))
+    k = int(np.argmax(radius))
+    return probes[k], float(radius[k])
+
+
+def _overlap(R: Polyhedron, Q: Polyhedron, eps: float) -> bool:
+    """``R ∩ Q`` holds a ball thicker than eps (the interior points of R and Q are tried before the LP)."""
+    return R.may_intersect(Q) and R.intersect(Q).has_ball(eps, (R.interior_point(), Q.interior_point()))
+
+
+def _subtract(R: Polyhedron, Q: Polyhedron, eps: float, tidy: bool = True,
+              overlapping: bool = False) -> list[Polyhedron]:
+    """``R \\ Q`` split along the rows of Q that cut R (``overlapping``: the caller checked ``_overlap``)."""
+    if not (overlapping or _overlap(R, Q, eps)):
         return [R]
-    cutting = np.flatnonzero(R.support_many(Q.A) > Q.b + eps)
+    cutting = np.flatnonzero(R.exceeds(Q.A, Q.b + eps))
     pieces = []
     A, b = R.A, R.b
+    hints = (R.interior_point(),)
     for i in cutting:
-        outside = Polyhedron(np.vstack([A, -Q.A[i]]), np.append(b, -Q.b[i]))
-        if outside.chebyshev_ball().radius > eps:
+        outside = Polyhedron._of_unit_rows(np.vstack([A, -Q.A[i]]), np.append(b, -Q.b[i]))
+        if outside.has_ball(eps, hints):
             pieces.append(outside.minimal() if tidy else outside)
         A, b = np.vstack([A, Q.A[i]]), np.append(b, Q.b[i])
     return pieces
@@ -194,16 +267,48 @@ def convex_union(P: Polyhedron, Q: Polyhedron, tol: float = 1e-9) -> Polyhedron 
     ``env = P ∪ Q``, i.e. iff for every row ``a x <= b`` of P left out of env,
     ``env ∩ {a x >= b} ⊆ Q``.
     """
-    if not P.may_intersect(Q) or P.intersect(Q).chebyshev_ball().radius < -tol:
+    if not P.may_intersect(Q) or _segment_leaves(P, Q, tol):
+        return None
+    if not _share_a_point(P, Q) and P.intersect(Q).chebyshev_ball().radius < -tol:
         return None  # disjoint: a union of two separated sets is not convex
-    p_ok = Q.support_many(P.A) <= P.b + tol
-    q_ok = P.support_many(Q.A) <= Q.b + tol
+    p_ok = ~Q.exceeds(P.A, P.b + tol)
+    q_ok = ~P.exceeds(Q.A, Q.b + tol)
     env = Polyhedron(np.vstack([P.A[p_ok], Q.A[q_ok]]), np.concatenate([P.b[p_ok], Q.b[q_ok]]))
     for a, bi in zip(P.A[~p_ok], P.b[~p_ok]):
         beyond = env.intersect(Polyhedron([-a], [-bi]))
         if not Q.contains_polyhedron(beyond, tol):
             return None
     return env.minimal()
+
+
+_SEGMENT_STEPS = np.linspace(0.0, 1.0, 9)[1:-1]
+
+
+def _segment_leaves(P: Polyhedron, Q: Polyhedron, tol: float) -> bool:
+    """A segment between known points of P and Q leaves ``P ∪ Q`` (by ``CERTIFICATE_MARGIN``): not convex.
+
+    A necessary condition for convexity, checked without an LP; it never rejects a union that
+    ``convex_union``'s own test would accept (see ``rcis.tolerances``).
+    """
+    p, q = P.known_points(), Q.known_points()
+    if not len(p) or not len(q):
+        return False
+    X = (p[:, None, None, :] + _SEGMENT_STEPS[None, None, :, None] * (q[None, :, None, :] - p[:, None, None, :]))
+    X = X.reshape(-1, P.dim)
+    margin = tol + CERTIFICATE_MARGIN
+    outside_p = np.max(X @ P.A.T - P.b, axis=1, initial=-np.inf) > margin
+    outside_q = np.max(X @ Q.A.T - Q.b, axis=1, initial=-np.inf) > margin
+    return bool(np.any(outside_p & outside_q))
+
+
+def _share_a_point(P: Polyhedron, Q: Polyhedron) -> bool:
+    """A known point lies in both P and Q with slack ``CERTIFICATE_MARGIN`` (then P ∩ Q is not empty)."""
+    X = np.vstack([P.known_points(), Q.known_points()])
+    if not len(X):
+        return False
+    slack = np.minimum(np.min(P.b - X @ P.A.T, axis=1, initial=np.inf),
+                       np.min(Q.b - X @ Q.A.T, axis=1, initial=np.inf))
+    return bool(np.any(slack >= CERTIFICATE_MARGIN))
 
 
 def merge_convex(pieces: list[Polyhedron]) -> list[Polyhedron]:

@@ -24,6 +24,10 @@ Exact up to a stated error (the same set, not a smaller one):
 - ``REDUNDANCY_TOL``: a row is dropped only if the LP proves it implied to this (1e-10).
 - ``INCLUSION_TOL``: ``Q ⊆ P`` when every row of P bounds Q to this (1e-7, HiGHS' feasibility).
 - ``GENERATOR_TOL``: vertices lie in P, and P in their hull, to this (1e-6 absolute on unit rows).
+- ``CERTIFICATE_MARGIN``: a comparison an LP would decide (a support value against a bound, a
+  Chebyshev radius against ``eps``) is decided without the LP only when a cheap bound (a point known to
+  lie in the set, the bounding box) clears it by this much, far above the LP's own error; closer calls
+  go to the LP, so the answer is the LP's.
 
 Numbers, not sets:
 - ``ROW_NORM_EPS``: a row with a smaller norm is the constant constraint ``0 <= b``.
@@ -42,6 +46,7 @@ BOUNDS_ROUNDING = 1e-9
 REDUNDANCY_TOL = 1e-10
 INCLUSION_TOL = 1e-7
 GENERATOR_TOL = 1e-6
+CERTIFICATE_MARGIN = 1e-5
 
 ROW_NORM_EPS = 1e-12
 CHEBYSHEV_CAP = 1e4

@@ -175,3 +175,19 @@ def test_an_lp_maximiser_outside_the_set_is_polished_into_it():
     for x in ([1 + 3e-6, 1.0], [1.0, 1 + 4e-6], [1 + 2e-6, -1 - 2e-6]):
         v = _polished_vertex(P, np.array(x), np.array([1.0, np.sign(x[1])]))
         assert P.contains(v, tol=GENERATOR_TOL) and np.abs(v - x).max() < 1e-5
+
+
+def test_an_lp_highs_leaves_undecided_is_decided_with_presolve():
+    """Without presolve HiGHS answers "Unknown" on this unbounded LP; with presolve it decides.
+    The retry once re-ran the model with the default options afterwards, got "Unknown" again and
+    recursed until Python's stack ran out."""
+    A = np.array([[-0.45900456984336346, 0.888433905736892], [-0.37484642916662736, 0.9270869185470307],
+                  [-0.9718622678253135, 0.2355498511513829], [-0.8693432587506975, -0.4942087600040268],
+                  [-0.9292455927550922, 0.36946262103931116], [-0.6656303409023627, -0.7462816152567371]])
+    b = np.array([0.6946119890411945, 1.7668802809297361, 1.062835002483509, 0.5969128999403096,
+                  0.3743126282648966, 0.39317876290765014])
+    d = np.array([0.7962162108981448, 0.6050121862433855])
+    lp = InequalityLP(A, b)
+    assert lp.maximize(d).status == "unbounded"
+    res = lp.maximize(-d)  # the same object keeps working, with its default options back
+    assert res.status == "optimal" and abs(res.value - 0.4347278672062611) < 1e-9
