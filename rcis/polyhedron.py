@@ -50,13 +50,16 @@ class Polyhedron:
         b = np.asarray(b, dtype=float).reshape(-1)
         if A.shape[0] != b.shape[0]:
             raise ValueError(f"A has {A.shape[0]} rows but b has {b.shape[0]} entries")
-        if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b) | (b == np.inf))):
+        if not (np.isfinite(A).all() and (np.isfinite(b) | (b == np.inf)).all()):
             raise ValueError("Polyhedron: A must be finite and b finite or +inf")
         keep = b < np.inf
-        A, b = A[keep], b[keep]
+        if not keep.all():
+            A, b = A[keep], b[keep]
         norms = np.linalg.norm(A, axis=1)
         zero = norms < ROW_NORM_EPS
-        if np.any(b[zero] < 0):
+        if not zero.any():
+            A, b = A / norms[:, None], b / norms
+        elif np.any(b[zero] < 0):
             A, b = np.zeros((1, A.shape[1])), np.array([-1.0])
         else:
             A, b = A[~zero] / norms[~zero, None], b[~zero] / norms[~zero]
@@ -619,7 +622,7 @@ def _dual_hull_filter(A: np.ndarray, b: np.ndarray):
     from scipy.spatial import ConvexHull, QhullError
 
     m, n = A.shape
-    if n < 2 or m < 2 * n + 2:
+    if n < 2 or m < n + 2:
         return None
     ball = Polyhedron(A, b).chebyshev_ball()
     if ball.center is None or not 1e-6 < ball.radius < CHEBYSHEV_CAP / 2:
@@ -758,15 +761,16 @@ def _kept_radius(A: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
 def _not_implied_by_axis_bounds(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Mask of rows that the axis-aligned rows alone do not imply."""
     m, n = A.shape
-    axis = np.sum(np.abs(A) > ROW_NORM_EPS, axis=1) == 1
+    nonzero = np.abs(A) > ROW_NORM_EPS
+    axis = nonzero.sum(axis=1) == 1
+    rows = np.flatnonzero(axis)
+    j = np.argmax(nonzero[rows], axis=1)
+    coef = A[rows, j]
+    bound = b[rows] / coef
     upper = np.full(n, np.inf)
     lower = np.full(n, -np.inf)
-    for i in np.flatnonzero(axis):
-        j = int(np.flatnonzero(np.abs(A[i]) > ROW_NORM_EPS)[0])
-        if A[i, j] > 0:
-            upper[j] = min(upper[j], b[i] / A[i, j])
-        else:
-            lower[j] = max(lower[j], b[i] / A[i, j])
+    np.minimum.at(upper, j[coef > 0], bound[coef > 0])
+    np.maximum.at(lower, j[coef < 0], bound[coef < 0])
     with np.errstate(invalid="ignore"):
         terms = np.where(A > 0, A * upper, np.where(A < 0, A * lower, 0.0))
     box_max = terms.sum(axis=1)

@@ -157,10 +157,13 @@ class PWASystem:
         return G, g
 
     def lifted_pre(self, j: int, target: Polyhedron, within: Polyhedron | None = None,
-                   margin: float = PRE_MARGIN) -> Polyhedron:
-        """``{(x, u) : x in D_j ∩ X ∩ within, u in U, f_j(x, u, W_j) ⊆ target ⊖ margin}``."""
+                   margin: float = PRE_MARGIN, rows=None) -> Polyhedron:
+        """``{(x, u) : x in D_j ∩ X ∩ within, u in U, f_j(x, u, W_j) ⊆ target ⊖ margin}``.
+
+        ``rows``: ``_robust_target_rows(piece j, target, margin)`` when the caller has them.
+        """
         p = self.pieces[j]
-        G, g = self._robust_target_rows(p, target, margin)
+        G, g = rows if rows is not None else self._robust_target_rows(p, target, margin)
         nx, nu = self.n_x, self.n_u
         blocks_A = [np.hstack([G @ p.A, G @ p.B])]
         blocks_b = [g - G @ p.c]
@@ -198,9 +201,10 @@ class PWASystem:
         out = []
         inputs = np.arange(self.n_x, self.n_x + self.n_u)
         for j in range(len(self.pieces)):
-            if self._misses_target(j, target, within, margin):
+            rows = self._robust_target_rows(self.pieces[j], target, margin)
+            if self._misses_target(j, rows, within, margin):
                 continue
-            lifted = self.lifted_pre(j, target, within, margin)
+            lifted = self.lifted_pre(j, target, within, margin, rows)
             if lifted.chebyshev_ball().radius <= min_radius:
                 continue
             P = lifted.eliminate(inputs)
@@ -208,8 +212,10 @@ class PWASystem:
                 out.append(P)
         return out
 
-    def _misses_target(self, j: int, target: Polyhedron, within: Polyhedron | None, margin: float) -> bool:
+    def _misses_target(self, j: int, rows, within: Polyhedron | None, margin: float) -> bool:
         """No state of piece j's domain box and input of U's box reaches some robust target row.
+
+        ``rows``: ``_robust_target_rows(piece j, target, margin)``.
 
         A test without an LP that the lifted set of ``lifted_pre`` is empty: the lowest value of one
         row ``G_i (A_j x + B_j u + c_j)`` over the boxes exceeds its bound by ``CERTIFICATE_MARGIN``.
@@ -218,7 +224,7 @@ class PWASystem:
         if np.any(lo > hi):
             return True
         p = self.pieces[j]
-        G, g = self._robust_target_rows(p, target, margin)
+        G, g = rows
         ulo, uhi = self.input_set.bounding_box()
         M = np.hstack([G @ p.A, G @ p.B])
         low, high = np.concatenate([lo, ulo]), np.concatenate([hi, uhi])
