@@ -101,7 +101,7 @@ def _candidate_inputs(polygons, rng, count: int):
     return picks[:count]
 
 
-def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
+def falsify(system: PWASystem, invariant: Region, samples: int, seed=0,
             window: Polyhedron | None = None, inputs_per_state: int = 3,
             admissible: AdmissibleInputs | None = None, progress=None) -> FalsifierReport:
     """Search for states of ``invariant`` that are not robustly controlled invariant.
@@ -114,8 +114,8 @@ def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
         The candidate RCIS.
     samples : int
         States drawn (interior, boundary and vertices of the pieces, inside ``window``).
-    seed : int
-        Random seed.
+    seed : int or sequence of int
+        Random seed (``numpy.random.default_rng``'s).
     window : Polyhedron, optional
         Where states are drawn (sets unbounded in some coordinate need one).
     inputs_per_state : int
@@ -171,7 +171,7 @@ def falsify(system: PWASystem, invariant: Region, samples: int, seed: int = 0,
     return report
 
 
-def falsify_all(jobs: dict, workers: int = 1, progress=None) -> dict:
+def falsify_all(jobs: dict, workers: int = 1, progress=None, parts: int = 1) -> dict:
     """``falsify(**job)`` for every named job, in up to ``workers`` processes.
 
     Parameters
@@ -183,35 +183,73 @@ def falsify_all(jobs: dict, workers: int = 1, progress=None) -> dict:
         Processes; 1 runs the jobs one after another in this process.
     progress : callable, optional
         ``progress(name, done, total)``.
+    parts : int
+        Each job is drawn as this many independent parts (``samples`` shared out, part k seeded with
+        ``[seed, k]``) whose reports are added up, so one large set can keep every worker busy. The
+        reports depend on ``parts``, never on ``workers``; ``parts=1`` is ``falsify`` itself.
 
     Returns
     -------
     dict of str to FalsifierReport
-        The same reports as ``falsify`` gives for each job alone (each job seeds its own generator).
+        The same reports whatever ``workers`` is (each part seeds its own generator).
     """
-    def reporter(name):
-        return (lambda done, total: progress(name, done, total)) if progress else None
+    pieces = _split(jobs, parts)
+    done = {}
 
-    if workers <= 1 or len(jobs) <= 1:
-        return {name: falsify(**job, progress=reporter(name)) for name, job in jobs.items()}
+    def report(key, n, total_of_key):
+        done[key] = n
+        if progress:
+            name = key[0]
+            progress(name, sum(v for k, v in done.items() if k[0] == name), jobs[name]["samples"])
+
+    if workers <= 1 or len(pieces) <= 1:
+        results = {key: falsify(**job, progress=lambda n, t, key=key: report(key, n, t))
+                   for key, job in pieces.items()}
+        return _merge(jobs, results)
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, wait
 
-    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(pieces))) as pool:
         queue = manager.Queue()
-        futures = {name: pool.submit(_falsify_reporting, job, name, queue) for name, job in jobs.items()}
+        futures = {key: pool.submit(_falsify_reporting, job, key, queue) for key, job in pieces.items()}
         pending = set(futures.values())
         while pending:
             _, pending = wait(pending, timeout=0.2)
             while not queue.empty():
-                name, done, total = queue.get()
-                if progress:
-                    progress(name, done, total)
-        return {name: f.result() for name, f in futures.items()}
+                key, n, total = queue.get()
+                report(key, n, total)
+        return _merge(jobs, {key: f.result() for key, f in futures.items()})
 
 
-def _falsify_reporting(job: dict, name: str, queue) -> FalsifierReport:
-    return falsify(**job, progress=lambda done, total: queue.put((name, done, total)))
+def _split(jobs: dict, parts: int) -> dict:
+    """``{(name, k): job}``: each job's samples shared out over ``parts`` seeds ``[seed, k]``."""
+    if parts <= 1:
+        return {(name, 0): job for name, job in jobs.items()}
+    out = {}
+    for name, job in jobs.items():
+        share = np.diff(np.linspace(0, job["samples"], parts + 1).round().astype(int))
+        for k, n in enumerate(share):
+            if n > 0:
+                out[(name, k)] = {**job, "samples": int(n), "seed": [job.get("seed", 0), k]}
+    return out
+
+
+def _merge(jobs: dict, results: dict) -> dict:
+    merged = {}
+    for name in jobs:
+        total = FalsifierReport()
+        for key in sorted(k for k in results if k[0] == name):
+            r = results[key]
+            total.samples += r.samples
+            total.inputs_checked += r.inputs_checked
+            total.split += r.split
+            total.counterexamples.extend(r.counterexamples)
+        merged[name] = total
+    return merged
+
+
+def _falsify_reporting(job: dict, key, queue) -> FalsifierReport:
+    return falsify(**job, progress=lambda done, total: queue.put((key, done, total)))
 
 
 def _common_piece(region: Region, points: np.ndarray):

@@ -205,3 +205,8 @@ def test_parallel_certification_gives_the_serial_reports_and_still_catches_the_d
     assert {n: r.as_dict() for n, r in serial.items()} == {n: r.as_dict() for n, r in parallel.items()}
     assert parallel["defect"].counterexamples and not parallel["cautious"].counterexamples
     assert set(seen) == {"defect", "cautious"}
+    halves = [falsify_all(jobs, workers=w, parts=2) for w in (1, 2)]  # as `guardian rcis certify` draws
+    assert [{n: r.as_dict() for n, r in h.items()} for h in halves][0] == \
+        [{n: r.as_dict() for n, r in h.items()} for h in halves][1]
+    assert halves[1]["defect"].samples == 400 and halves[1]["defect"].counterexamples
+    assert not halves[1]["cautious"].counterexamples
