@@ -82,8 +82,9 @@ class AdmissibleInputs:
         x = np.asarray(x, dtype=float)
         if x.shape != (self.system.n_x,) or not np.all(np.isfinite(x)):
             raise ValueError(f"state must be {self.system.n_x} finite numbers, got {x.tolist()}")
-        GA, GB, r0, starts = self._rows[self.system.piece_index(x)]
-        return AdmissibleQuery(self, GB, r0 - GA @ x, starts)
+        j = self.system.piece_index(x)
+        GA, GB, r0, starts = self._rows[j]
+        return AdmissibleQuery(self, GB, r0 - GA @ x, starts, piece=j)
 
     def polygons(self, x) -> list[np.ndarray]:
         """``S(x)`` as convex polygons (vertex arrays, counter-clockwise); [] if empty."""
@@ -162,15 +163,24 @@ class AdmissibleInputs:
 class AdmissibleQuery:
     """``S(x) = ∪_p {u in U : G_p u <= r_p}`` at one state x."""
 
-    def __init__(self, owner: AdmissibleInputs, G: np.ndarray, r: np.ndarray, starts: np.ndarray):
+    def __init__(self, owner: AdmissibleInputs, G: np.ndarray, r: np.ndarray, starts: np.ndarray,
+                 piece: int | None = None):
         self.owner, self.G, self.r, self.starts = owner, G, r, starts
+        self.piece = piece  # the PWA piece of the state, when the query came from ``at``
         self._polygons = None
+        self._clipped = None
+
+    def clipped(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(verts, counts)``: polygon p of the set's piece p is ``verts[p, :counts[p]]`` (empty when 0)."""
+        if self._clipped is None:
+            self._clipped = _kernels.clip_box_by_halfplanes(self.G, self.r, self.starts,
+                                                            self.owner.u_lower, self.owner.u_upper)
+        return self._clipped
 
     @property
     def polygons(self) -> list[np.ndarray]:
         if self._polygons is None:
-            verts, counts = _kernels.clip_box_by_halfplanes(self.G, self.r, self.starts,
-                                                            self.owner.u_lower, self.owner.u_upper)
+            verts, counts = self.clipped()
             self._polygons = [verts[p, :counts[p]].copy() for p in np.flatnonzero(counts)]
         return self._polygons
 

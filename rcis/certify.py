@@ -91,11 +91,15 @@ class _PieceSampler:
         return res.x if res.status == "optimal" else self.interior()
 
 
-def _candidate_inputs(polygons, rng, count: int):
-    P = polygons[rng.integers(len(polygons))]
+def _candidate_inputs(verts, counts, nonempty, rng, count: int):
+    """A polygon's centroid and one of its vertices, then random convex combinations (S(x)'s polygons
+    as the clipping kernel returns them: ``verts[p, :counts[p]]`` for p in ``nonempty``)."""
+    p = nonempty[rng.integers(len(nonempty))]
+    P = verts[p, :counts[p]]
     picks = [P.mean(axis=0), P[rng.integers(len(P))]]
     while len(picks) < count:
-        Q = polygons[rng.integers(len(polygons))]
+        q = nonempty[rng.integers(len(nonempty))]
+        Q = verts[q, :counts[q]]
         w = rng.dirichlet(np.ones(len(Q)))
         picks.append(w @ Q)
     return picks[:count]
@@ -138,24 +142,27 @@ def falsify(system: PWASystem, invariant: Region, samples: int, seed=0,
     W_vertices = [p.W.generators()[0] for p in system.pieces]
     report = FalsifierReport()
     kinds = ("interior", "boundary", "vertex")
+    A, b, starts = invariant.stacked()
     k = 0
     while report.samples < samples:
         sampler = samplers[k % len(samplers)]
         k += 1
         kind = kinds[rng.choice(3, p=[0.5, 0.35, 0.15])]
         x = getattr(sampler, kind)()
-        if not invariant.contains(x, MEMBERSHIP_TOL):
+        if _kernels.first_piece(A, b, starts, x, MEMBERSHIP_TOL) < 0:
             continue  # a chord end rounded outside: not a state of C, draw another
         report.samples += 1
         if progress and report.samples % max(1, samples // 20) == 0:
             progress(report.samples, samples)
-        polygons = adm.polygons(x)
-        if not polygons:
+        query = adm.at(x)
+        verts, counts = query.clipped()
+        nonempty = np.flatnonzero(counts)
+        if not len(nonempty):
             report.counterexamples.append(Counterexample(x.tolist(), None, None, "S(x) is empty"))
             continue
-        j = system.piece_index(x)
+        j = query.piece
         piece = system.pieces[j]
-        for u in _candidate_inputs(polygons, rng, inputs_per_state):
+        for u in _candidate_inputs(verts, counts, nonempty, rng, inputs_per_state):
             report.inputs_checked += 1
             successors = piece.image(x, u) + W_vertices[j] @ piece.E.T
             owners = _common_piece(invariant, successors)
