@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import highspy
 import numpy as np
 
+from rcis.lp import quiet_highs
 from rcis.validate import finite_vector
 
 
@@ -32,8 +33,7 @@ class _SlidingFeasibilityLP:
     def __init__(self, E: np.ndarray, w_lower: np.ndarray, w_upper: np.ndarray, horizon: int, tol: float):
         n_x, n_w = E.shape
         self.n_x, self.n_w, self.N, self.tol = n_x, n_w, horizon, tol
-        h = highspy.Highs()
-        h.setOptionValue("output_flag", False)
+        h = quiet_highs()
         lp = highspy.HighsLp()
         lp.num_col_ = n_w * horizon
         lp.num_row_ = n_x * horizon

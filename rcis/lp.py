@@ -20,17 +20,29 @@ _POOL = threading.local()  # per thread: Highs objects of dropped LPs, reused (c
 _POOL_SIZE = 32
 
 
-def _solver() -> highspy.Highs:
+def quiet_highs():
+    """A HiGHS solver that prints nothing.
+
+    highspy's ``Highs`` (1.16) enables its Python callbacks in its constructor, and the first time in
+    a process that prints HiGHS' banner on stdout, where a service's or a ``--json`` command's output
+    goes. We use no callbacks, so the core class is taken where highspy has one.
+    """
+    core = getattr(getattr(highspy, "_core", None), "_Highs", None)
+    h = core() if core is not None else highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    return h
+
+
+def _solver():
     free = getattr(_POOL, "free", None)
     if free:
         return free.pop()
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    h = quiet_highs()
     h.setOptionValue("presolve", "off")
     return h
 
 
-def _release(h: highspy.Highs, tuned: bool) -> None:
+def _release(h, tuned: bool) -> None:
     """Back to this thread's pool with the options every LP starts from (passModel replaces the model)."""
     if tuned:
         h.setOptionValue("primal_feasibility_tolerance", _DEFAULT_TOL)

@@ -98,6 +98,15 @@ def envelope_union(P, Q, tol=1e-9):
     return env
 
 
+def split(rng, whole, n, overlap=0.0):
+    """Two halves of a polytope along a random hyperplane through its centre (the first one reaching
+    ``overlap`` past the cut)."""
+    a = rng.normal(size=n)
+    a /= np.linalg.norm(a)
+    cut = float(a @ whole.chebyshev_ball().center)
+    return [whole.intersect(Polyhedron([a], [cut + overlap])), whole.intersect(Polyhedron([-a], [-cut]))]
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_convex_union_is_the_envelope_answer(seed):
     """Halves of one polytope (convex union) and unrelated pairs (mostly not): the certificates
@@ -107,12 +116,7 @@ def test_convex_union_is_the_envelope_answer(seed):
     for _ in range(25):
         n = int(rng.integers(2, 5))
         whole = random_polytope(rng, n, 3 * n)
-        a = rng.normal(size=n)
-        a /= np.linalg.norm(a)
-        cut = float(a @ whole.chebyshev_ball().center)
-        overlap = rng.choice([0.0, 0.05])
-        halves = [with_certificates(whole.intersect(Polyhedron([a], [cut + overlap]))),
-                  with_certificates(whole.intersect(Polyhedron([-a], [-cut])))]
+        halves = [with_certificates(h) for h in split(rng, whole, n, overlap=rng.choice([0.0, 0.05]))]
         other = with_certificates(random_polytope(rng, n, 3 * n, shift=rng.normal(size=n)))
         for P, Q in ((halves[0], halves[1]), (halves[0], other), (other, halves[1])):
             got, want = convex_union(P, Q), envelope_union(P, Q)
@@ -140,14 +144,6 @@ def test_probe_balls_lie_in_the_piece_and_outside_the_union(seed):
         assert np.all(R.contains(X, tol=0.0))
         assert not np.any(Region(pieces, n).contains(X, tol=0.0))
     assert found > 5
-
-
-def split(rng, whole, n):
-    """Two halves of a polytope along a random hyperplane through its centre."""
-    a = rng.normal(size=n)
-    a /= np.linalg.norm(a)
-    cut = float(a @ whole.chebyshev_ball().center)
-    return [whole.intersect(Polyhedron([a], [cut])), whole.intersect(Polyhedron([-a], [-cut]))]
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -191,3 +191,18 @@ def test_an_lp_highs_leaves_undecided_is_decided_with_presolve():
     assert lp.maximize(d).status == "unbounded"
     res = lp.maximize(-d)  # the same object keeps working, with its default options back
     assert res.status == "optimal" and abs(res.value - 0.4347278672062611) < 1e-9
+
+
+def test_solving_lps_prints_nothing_on_stdout():
+    """highspy 1.16's ``Highs()`` prints a banner on stdout the first time in a process; stdout carries
+    the JSON of ``--json`` commands and the service's address, so no LP may print anything."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from rcis.lp import InequalityLP\n"
+            "from intention.estimator import _SlidingFeasibilityLP\n"
+            "_SlidingFeasibilityLP(np.eye(2), -np.ones(2), np.ones(2), 3, 1e-9)\n"
+            "print(InequalityLP(np.eye(2), np.ones(2)).maximize(np.ones(2)).status)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout == "optimal\n"
