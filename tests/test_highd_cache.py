@@ -107,3 +107,21 @@ def test_the_cached_itha_view_is_the_converted_recording(folder, tmp_path):
         for x, y in zip(view.lane_changes, fresh.lane_changes):
             for f in x.__dataclass_fields__:
                 assert np.array_equal(np.asarray(getattr(x, f)), np.asarray(getattr(y, f))), f
+
+
+def test_a_view_with_a_missing_array_is_refused_and_rebuilt(tmp_path, capsys):
+    """The view is a folder of .npy files; one missing (a crash mid-copy, a hand edit) refuses the
+    whole entry with a message and reads the CSV files again, never a partial view."""
+    import numpy as np
+
+    from guardian.highd.cache import load_itha_view
+
+    folder = SAMPLES[0]
+    load_itha_view(folder, 1, cache_dir=tmp_path)
+    views = list(tmp_path.glob("*/itha-*"))
+    assert len(views) == 1 and views[0].is_dir()
+    (views[0] / "v.npy").unlink()
+    data, _, hit = load_itha_view(folder, 1, cache_dir=tmp_path)
+    assert not hit and "refusing the HighD cache entry" in capsys.readouterr().err
+    again, _, hit = load_itha_view(folder, 1, cache_dir=tmp_path)
+    assert hit and np.array_equal(again.v, data.v)

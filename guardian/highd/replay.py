@@ -200,29 +200,36 @@ def _overrides_chunked(p: CarFollowingParams, test: ITHAData, mask=None) -> np.n
     return out
 
 
-def _responsibility(p, events, overapprox: str, pool=None) -> int:
-    """Refused lane changes; with a pool (executor or Dask client), in chunks on its workers."""
+def _responsibility(p, events, overapprox: str, pool=None):
+    """Refused lane changes, as a callable that returns the count.
+
+    With a pool (executor or Dask client) the chunks are submitted at once and run on its workers
+    while the caller goes on (the self-safety check in this process); the callable collects them.
+    """
     if pool is None or len(events) < 64:
-        return responsibility_overrides(p, events, overapprox)
+        return lambda: responsibility_overrides(p, events, overapprox)
     n = 16
     chunks = [events[k::n] for k in range(n)]
     if hasattr(pool, "gather"):  # dask.distributed.Client
-        return sum(pool.gather(pool.map(responsibility_overrides, [p] * n, chunks, [overapprox] * n, pure=False)))
-    return sum(pool.map(responsibility_overrides, [p] * n, chunks, [overapprox] * n))
+        futures = pool.map(responsibility_overrides, [p] * n, chunks, [overapprox] * n, pure=False)
+        return lambda: sum(pool.gather(futures))
+    results = pool.map(responsibility_overrides, [p] * n, chunks, [overapprox] * n)  # submitted now
+    return lambda: sum(results)
 
 
 def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, events, contexts: bool,
              pool=None) -> dict:
     bounds = order_statistic_bounds(train.d, cfg.quantiles)
     p = car_following_params(cfg, dt, bounds, train.u_bounds(cfg))
+    refused = {k: _responsibility(p, events, k, pool) for k in ("trivial", "ordered")}
     over = _overrides_chunked(p, test)
     rss_default, rss_calibrated = RSSParams(), calibrated_rss(p, dt)
     rss_over = longitudinal_violations(rss_default, test.v, test.h, test.vL)
     rss_cal_over = longitudinal_violations(rss_calibrated, test.v, test.h, test.vL)
     out = {"disturbance_bounds": [bounds[0], bounds[1]], "input_bounds": [p.u_min, p.u_max],
            "override_rates": {"self_safety": float(over.mean()) if len(over) else 0.0,
-                              "responsibility_trivial": _rate(_responsibility(p, events, "trivial", pool), events),
-                              "responsibility_ordered": _rate(_responsibility(p, events, "ordered", pool), events),
+                              "responsibility_trivial": _rate(refused["trivial"](), events),
+                              "responsibility_ordered": _rate(refused["ordered"](), events),
                               "rss_longitudinal": float(rss_over.mean()) if len(rss_over) else 0.0,
                               "rss_longitudinal_calibrated": float(rss_cal_over.mean()) if len(rss_cal_over) else 0.0,
                               "rss_cut_in": _rate(sum(not _rss_cut_in(rss_default, e) for e in events), events),
