@@ -55,6 +55,7 @@ def _release(h, tuned: bool) -> None:
         free.append(h)
 
 
+_BOX = 1e9  # the bounding box of the last retry (InequalityLP._within_box)
 _ROWWISE = int(highspy.MatrixFormat.kRowwise)
 _MAXIMIZE = int(highspy.ObjSense.kMaximize)
 
@@ -101,6 +102,7 @@ class InequalityLP:
         start, index = _rowwise_pattern(m, n)
         col_lower = np.full(n, -INF) if lower is None else np.asarray(lower, float)
         col_upper = np.full(n, INF) if upper is None else np.asarray(upper, float)
+        self._col_bounds = (col_lower, col_upper)
         # the array form of passModel (a HighsLp object costs ~25 µs more to fill); no integer columns
         self._h.passModel(n, m, m * n, _ROWWISE, _MAXIMIZE, 0.0, np.zeros(n), col_lower, col_upper,
                           np.full(m, -INF), b.copy(), start, index, A.ravel(), np.zeros(n, dtype=np.int32))
@@ -166,8 +168,37 @@ class InequalityLP:
         finally:
             self._h.setOptionValue("presolve", "off")
             self._h.setOptionValue("solver", "choose")
+        result = self._within_box()
+        if result is not None:
+            return result
         raise LPError(f"HiGHS returned {self._h.modelStatusToString(status)} "
-                      f"on a {self.m}x{self.n} LP, also with presolve and interior point")
+                      f"on a {self.m}x{self.n} LP, also with presolve, interior point and a bounding box")
+
+    def _within_box(self) -> LPResult | None:
+        """Last resort (HiGHS 1.16 answers "Unknown" on some unbounded LPs): solve inside ``|x_i| <= BOX``.
+
+        An optimum off the box's faces is the LP's own (the box is inactive there); an optimum on a
+        face means the cost improves up to the box: reported unbounded. A finite optimum beyond
+        ``BOX`` in some coordinate would be misread as unbounded; the engine's sets live within
+        ``|x| <= 1e4``. Infeasible inside the box decides nothing (None).
+        """
+        lower, upper = self._col_bounds
+        boxed_lower, boxed_upper = np.maximum(lower, -_BOX), np.minimum(upper, _BOX)
+        self._h.changeColsBounds(self.n, self._cols, boxed_lower, boxed_upper)
+        try:
+            self._h.clearSolver()
+            self._h.run()
+            if self._h.getModelStatus() != _STATUS.kOptimal:
+                return None
+            x = np.array(self._h.getSolution().col_value)
+            on_face = ((np.abs(x - boxed_lower) <= _BOX * 1e-9) & (boxed_lower > lower)) | \
+                      ((np.abs(x - boxed_upper) <= _BOX * 1e-9) & (boxed_upper < upper))
+            if np.any(on_face):
+                return LPResult("unbounded", np.inf, None)
+            return LPResult("optimal", self._h.getObjectiveValue(), x)
+        finally:
+            self._h.changeColsBounds(self.n, self._cols, lower, upper)
+            self._h.clearSolver()
 
 
 def maximize(c, A, b, lower=None, upper=None) -> LPResult:

@@ -27,8 +27,14 @@ def _damage(path, how):
     data = path.read_bytes()
     if how == "truncated":
         path.write_bytes(data[: len(data) // 2])
-    elif how == "one byte flipped":
-        i = len(data) // 2
+    elif how == "one byte flipped":  # inside an array's stored bytes: a flip in a zip header's spare
+        import zipfile                  # fields (a local CRC copy, a timestamp) leaves the data intact
+
+        with zipfile.ZipFile(path) as z:
+            member = max(z.infolist(), key=lambda m: m.compress_size)
+        h = member.header_offset  # the local header: 30 bytes, then its own name and extra lengths
+        start = h + 30 + int.from_bytes(data[h + 26:h + 28], "little") + int.from_bytes(data[h + 28:h + 30], "little")
+        i = start + member.compress_size // 2
         path.write_bytes(data[:i] + bytes([data[i] ^ 0xFF]) + data[i + 1:])
     elif how == "empty":
         path.write_bytes(b"")

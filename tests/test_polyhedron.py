@@ -206,3 +206,29 @@ def test_solving_lps_prints_nothing_on_stdout():
             "print(InequalityLP(np.eye(2), np.ones(2)).maximize(np.ones(2)).status)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout == "optimal\n"
+
+
+def test_an_unbounded_lp_highs_cannot_decide_is_decided_inside_a_box():
+    """HiGHS 1.16 answers "Unknown" on this unbounded LP with and without presolve and with interior
+    point; the last retry solves it inside |x| <= 1e9, where the optimum lies on the box: unbounded.
+    The same object then answers a bounded direction normally."""
+    from scipy.optimize import linprog
+
+    A = np.array([[-0.7545752913242896, 0.585438109954037, -0.2964428260833928],
+                  [-0.9071345847550834, -0.4110367592071348, 0.09030851411532864],
+                  [-0.08625701612660147, -0.5986716044923988, -0.7963366355652816],
+                  [-0.02206670535295478, 0.8011432793628833, -0.5980656372393846],
+                  [0.24158900247217852, -0.8122883097581262, 0.5308695279584091],
+                  [0.5279150116731121, -0.6181786579358994, -0.5823752118031367],
+                  [-0.9867539349881891, 0.0335452013480188, -0.1587179613397479],
+                  [-0.8926465524611507, -0.2966142401097528, 0.33941438529227974],
+                  [0.22081249976794667, 0.36977143412885166, -0.9025025908264879]])
+    b = np.array([0.8456433880159002, 1.0306105547609912, 3.1665656598378136, 1.9151983727340114,
+                  2.2093673075958766, 2.0031584597553183, 0.4292082193907565, 1.24107330438191,
+                  1.8659701494640486])
+    lp = InequalityLP(A, b)
+    assert lp.maximize(np.array([1.0, 0.0, 0.0])).status == "unbounded"
+    d = A[0] + A[6]  # a direction the rows bound (a sum of two rows)
+    ref = linprog(-d, A_ub=A, b_ub=b, bounds=[(None, None)] * 3)
+    res = lp.maximize(d)
+    assert ref.status == 0 and res.status == "optimal" and abs(res.value + ref.fun) < 1e-7
