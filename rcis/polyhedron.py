@@ -23,6 +23,12 @@ from rcis.tolerances import (  # noqa: F401 (re-exported)
 
 
 
+def box_support(D: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``max d^T x`` over the box ``lower <= x <= upper`` for each row d of D (infinite bounds allowed)."""
+    with np.errstate(invalid="ignore"):
+        return np.where(D > 0, D * upper, np.where(D < 0, D * lower, 0.0)).sum(axis=1)
+
+
 @dataclass(frozen=True)
 class ChebyshevBall:
     center: np.ndarray | None
@@ -142,18 +148,14 @@ class Polyhedron:
         """``h_P(d) = max_{x in P} d^T x`` (+inf if unbounded, -inf if empty)."""
         d = np.asarray(direction, dtype=float)
         if self._box is not None:
-            lo, hi = self._box
-            return float(np.sum(np.where(d > 0, d * hi, np.where(d < 0, d * lo, 0.0))))
+            return float(box_support(d[None, :], *self._box)[0])
         return InequalityLP(self.A, self.b).maximize(d).value
 
     def support_many(self, directions) -> np.ndarray:
         """Support function for each row of ``directions`` (one model, many costs)."""
         D = np.atleast_2d(np.asarray(directions, dtype=float))
         if self._box is not None:
-            lo, hi = self._box
-            with np.errstate(invalid="ignore"):
-                terms = np.where(D > 0, D * hi, np.where(D < 0, D * lo, 0.0))
-            return terms.sum(axis=1)
+            return box_support(D, *self._box)
         lp = InequalityLP(self.A, self.b)
         return np.array([lp.maximize(d).value for d in D])
 
@@ -247,10 +249,7 @@ class Polyhedron:
         box = self._box if self._box is not None else self._bbox
         if box is None:
             return lower, np.full(len(D), np.inf)
-        lo, hi = box
-        with np.errstate(invalid="ignore"):
-            terms = np.where(D > 0, D * hi, np.where(D < 0, D * lo, 0.0))
-        return lower, terms.sum(axis=1)
+        return lower, box_support(D, *box)
 
     def exceeds(self, directions, limits) -> np.ndarray:
         """``h_P(d_i) > limits_i`` for each row ``d_i`` of ``directions``.
@@ -661,13 +660,8 @@ def _implied_by_hull(A, b, slack, c, hull, dropped, kept) -> np.ndarray:
     Coplanar simplices (qhull triangulates non-simplicial facets) tie on ``t``; the nearest few are
     tried in order.
     """
-    n = A.shape[1]
     points = A / slack[:, None]
-    normals, offsets = hull.equations[:, :n], hull.equations[:, n]
-    reach = points[dropped] @ normals.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(reach > 0, -offsets / reach, np.inf)
-    order = np.argsort(t, axis=1)[:, :_CERTIFICATE_TRIES]
+    t, order = _ray_exits(hull, points[dropped])
     reach_box = None
     proven = np.zeros(len(dropped), dtype=bool)
     for rank in range(order.shape[1]):
@@ -689,13 +683,30 @@ def _implied_by_hull(A, b, slack, c, hull, dropped, kept) -> np.ndarray:
     return proven
 
 
-def _certified(A, b, points, slack, c, rows, simplex, t_exit, reach_box) -> np.ndarray:
-    """The certificate test of ``_implied_by_hull`` for rows ``rows`` against their simplices."""
+def _ray_exits(hull, X: np.ndarray):
+    """Rays from the origin along the rows of X: ``t[k, f]``, where ray k leaves through hull facet f
+    (inf where it never does), and each ray's facets nearest first (up to ``_CERTIFICATE_TRIES``)."""
+    n = X.shape[1]
+    normals, offsets = hull.equations[:, :n], hull.equations[:, n]
+    reach = X @ normals.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(reach > 0, -offsets / reach, np.inf)
+    return t, np.argsort(t, axis=1)[:, :_CERTIFICATE_TRIES]
+
+
+def _on_simplices(points, simplex, targets):
+    """``mu`` with ``targets[k] = sum_j mu[k, j] points[simplex[k, j]]``, and which simplices were
+    solvable (a singular one gets a placeholder solve and ``usable`` False)."""
     M = np.transpose(points[simplex], (0, 2, 1))
     det = np.linalg.det(M)
     usable = np.isfinite(det) & (np.abs(det) > 1e-300)
     M[~usable] = np.eye(M.shape[1])
-    mu = np.linalg.solve(M, (t_exit[:, None] * points[rows])[..., None])[..., 0]
+    return np.linalg.solve(M, targets[..., None])[..., 0], usable
+
+
+def _certified(A, b, points, slack, c, rows, simplex, t_exit, reach_box) -> np.ndarray:
+    """The certificate test of ``_implied_by_hull`` for rows ``rows`` against their simplices."""
+    mu, usable = _on_simplices(points, simplex, t_exit[:, None] * points[rows])
     usable &= np.all(mu >= -1e-9, axis=1)
     lam = np.maximum(mu, 0.0) / t_exit[:, None]
     nu = slack[rows][:, None] * lam / slack[simplex]
@@ -715,12 +726,8 @@ def _hull_reach(points, hull, kept) -> float:
     simplex (the caller then solves the LPs).
     """
     n = points.shape[1]
-    normals, offsets = hull.equations[:, :n], hull.equations[:, n]
     D = np.vstack([np.eye(n), -np.eye(n)])
-    reach = D @ normals.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(reach > 0, -offsets / reach, np.inf)
-    order = np.argsort(t, axis=1)[:, :_CERTIFICATE_TRIES]
+    t, order = _ray_exits(hull, D)
     alpha = np.full(len(D), np.inf)
     beta = np.full(len(D), np.inf)
     for rank in range(order.shape[1]):
@@ -734,10 +741,8 @@ def _hull_reach(points, hull, kept) -> float:
         rows, t_exit, simplex = rows[live], t_exit[live], simplex[live]
         if rows.size == 0:
             continue
-        M = np.transpose(points[simplex], (0, 2, 1))
-        usable = np.abs(np.linalg.det(M)) > 1e-300
-        M[~usable] = np.eye(n)
-        mu = np.maximum(np.linalg.solve(M, (t_exit[:, None] * D[rows])[..., None])[..., 0], 0.0)
+        mu, usable = _on_simplices(points, simplex, t_exit[:, None] * D[rows])
+        mu = np.maximum(mu, 0.0)
         residual = t_exit[:, None] * D[rows] - np.einsum("kj,kjn->kn", mu, points[simplex])
         ok = usable & np.isfinite(mu).all(axis=1)
         alpha[rows[ok]] = mu[ok].sum(axis=1) / t_exit[ok]
@@ -771,9 +776,7 @@ def _not_implied_by_axis_bounds(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     lower = np.full(n, -np.inf)
     np.minimum.at(upper, j[coef > 0], bound[coef > 0])
     np.maximum.at(lower, j[coef < 0], bound[coef < 0])
-    with np.errstate(invalid="ignore"):
-        terms = np.where(A > 0, A * upper, np.where(A < 0, A * lower, 0.0))
-    box_max = terms.sum(axis=1)
+    box_max = box_support(A, lower, upper)
     implied = (~axis) & (box_max <= b + REDUNDANCY_TOL)
     return ~implied
 

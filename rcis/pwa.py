@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rcis.polyhedron import Polyhedron
+from rcis.polyhedron import Polyhedron, box_support
 from rcis.tolerances import CERTIFICATE_MARGIN, PIECE_TOL, PRE_MARGIN, RUNTIME_MARGIN  # noqa: F401 (re-exported)
 
 
@@ -228,8 +228,7 @@ class PWASystem:
         ulo, uhi = self.input_set.bounding_box()
         M = np.hstack([G @ p.A, G @ p.B])
         low, high = np.concatenate([lo, ulo]), np.concatenate([hi, uhi])
-        with np.errstate(invalid="ignore"):
-            least = np.where(M > 0, M * low, np.where(M < 0, M * high, 0.0)).sum(axis=1) + G @ p.c
+        least = -box_support(-M, low, high) + G @ p.c  # the lowest value of each row over the boxes
         return bool(np.any(least > g + CERTIFICATE_MARGIN))
 
     def _domain_box(self, j: int, within: Polyhedron | None, margin: float):
