@@ -1,6 +1,4 @@
 """ITHA core and the parallel processors: Theorem 5 as a property, Table 7.1's shape."""
-import itertools
-
 import numpy as np
 import pytest
 

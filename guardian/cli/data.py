@@ -122,7 +122,7 @@ def add_commands(sub) -> None:
                    help="U from --u-min/--u-max, or the training inputs' quantiles (per context with --contexts)")
     p.add_argument("--rerun", type=Path, default=None, help="record the first recording with its overrides (.rrd)")
     p.add_argument("--no-cache", action="store_true",
-                   help="parse every file afresh; by default validated recordings are kept as Parquet in "
+                   help="parse every file afresh; by default each validated recording's ITHA view is kept in "
                         "<GUARDIAN_CACHE_DIR>/highd and read from there when the files are unchanged")
     p.add_argument("--no-plausibility", action="store_true",
                    help="read files that break the plausibility rules (frame rate, speeds, accelerations, markings)")

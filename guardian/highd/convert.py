@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from guardian.highd.reader import Recording
+from guardian.highd.reader import Recording, positions, track_order
 
 
 @dataclass
@@ -86,26 +86,21 @@ def to_itha(rec: Recording) -> ITHAData:
         events with the cars around them.
     """
     t = rec.tracks
-    order = np.lexsort((t["frame"].to_numpy(), t["id"].to_numpy()))
-    if np.any(order != np.arange(len(order))):  # HighD files come sorted by (id, frame); others are sorted here
+    order = track_order(t["id"].to_numpy(), t["frame"].to_numpy())
+    if order is not None:  # HighD files come sorted by (id, frame); others are sorted here
         t = t.iloc[order].reset_index(drop=True)
-    dirmap = rec.tracks_meta.set_index("id")["drivingDirection"]
     ids = t["id"].to_numpy()
     frames = t["frame"].to_numpy()
-    direction = dirmap.reindex(ids).to_numpy()
+    direction = rec.tracks_meta["drivingDirection"].to_numpy()[positions(rec.tracks_meta["id"].to_numpy(), ids)]
     sign = np.where(direction == 2, 1.0, -1.0)
     x, w = t["x"].to_numpy(), t["width"].to_numpy()
     s_front = np.where(direction == 2, x + w, -x)
     s_rear = s_front - w
     v = sign * t["xVelocity"].to_numpy()
     lane = _lane_numbers(rec, t["laneId"].to_numpy(), direction)
-    # row of (id, frame): keys sorted because t is sorted by (id, frame)
-    span = int(frames.max()) + 2 if len(frames) else 1
-    keys = ids.astype(np.int64) * span + frames
     pre = t["precedingId"].to_numpy()
-    lead_row = np.searchsorted(keys, pre.astype(np.int64) * span + frames)
-    lead_row = np.minimum(lead_row, len(keys) - 1)
-    has_lead = (pre != 0) & (keys[lead_row] == pre.astype(np.int64) * span + frames)
+    lead_row = _rows_of(ids, frames, pre)
+    has_lead = (pre != 0) & (ids[lead_row] == pre) & (frames[lead_row] == frames)
     if np.any((pre != 0) & ~has_lead):
         r = int(np.flatnonzero((pre != 0) & ~has_lead)[0])
         raise ValueError(f"recording {rec.id}: vehicle {ids[r]} at frame {frames[r]} follows vehicle {pre[r]}, "
@@ -127,6 +122,16 @@ def to_itha(rec: Recording) -> ITHAData:
                     v[has_next], h[has_next], vL[has_next], u[has_next], d[has_next])
     data.lane_changes = _lane_changes(rec, ids, frames, direction, s_front, v, lane, w, shift)
     return data
+
+
+def _rows_of(ids: np.ndarray, frames: np.ndarray, vehicle: np.ndarray) -> np.ndarray:
+    """The row of (``vehicle``, the same frame) for each row, in rows sorted by (id, frame) whose
+    frames run without gaps (a validated recording); an index to check, not an answer, where that
+    vehicle has no such row."""
+    starts = np.flatnonzero(np.concatenate(([True], ids[1:] != ids[:-1])))
+    track = positions(ids[starts], vehicle)
+    row = starts[track] + (frames - frames[starts][track])
+    return np.where((track >= 0) & (row >= 0) & (row < len(ids)), row, 0)
 
 
 def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift) -> list[LaneChange]:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from guardian.highd.numeric_csv import read_numeric_csv
 from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, PLAUSIBILITY, STR, file_name
 
 FILE_PATTERN = re.compile(r"^(\d+)_(recordingMeta|tracksMeta|tracks)\.csv$")
@@ -136,9 +137,9 @@ def read_table(path: Path, schema: dict) -> pd.DataFrame:
         raise HighDFormatError(f"{path}: line 1: a header but no data rows")
     _check_missing(path, df, schema)
     for c, t in schema.items():
-        if t == INT:
+        if t == INT and df[c].dtype.kind == "f":
             col = df[c].to_numpy()
-            frac = np.flatnonzero((col != np.round(col)) | (np.abs(col) > MAX_EXACT_INT))
+            frac = np.flatnonzero(~_exact_integers(col))
             if len(frac):
                 r = frac[0]
                 raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {float(col[r]):g} is not an integer"
@@ -148,12 +149,20 @@ def read_table(path: Path, schema: dict) -> pd.DataFrame:
 
 
 MAX_EXACT_INT = 2.0 ** 53  # integers read as float64 are exact up to this
+
+
+def _exact_integers(col: np.ndarray) -> np.ndarray:
+    """Which float64 values are integers that int64 holds exactly."""
+    return (col == np.round(col)) & (np.abs(col) <= MAX_EXACT_INT)
 PARSE_THREADS = True  # pyarrow parses with its thread pool; replay's worker processes turn it off (one core each)
 
 
 def _read_clean_csv(path: Path, schema: dict) -> pd.DataFrame | None:
-    """A clean file through pyarrow's multi-threaded CSV reader; None if anything needs a message.
+    """A clean file through a fast reader; None if anything needs a message.
 
+    An all-numeric file (the tracks) goes through ``numeric_csv``'s compiled reader, which returns
+    pyarrow's doubles bit for bit or declines; otherwise, or when it declines, pyarrow's
+    multi-threaded CSV reader.
     Clean means: the header holds exactly the schema's columns, pyarrow parses every value as the
     schema's type (strings checked as UTF-8, numbers are ASCII), and no value is missing. Anything
     else (a bad value or byte, a short row, an empty field, a stray quote, a BOM, an empty file)
@@ -164,6 +173,14 @@ def _read_clean_csv(path: Path, schema: dict) -> pd.DataFrame | None:
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
+    if STR not in schema.values():  # all numeric (the tracks files): the compiled reader, exact or declining
+        parsed = read_numeric_csv(path, list(schema))
+        if parsed is not None:  # integer columns that hold integers become int64 here; read_table names the rest
+            columns, plain = parsed
+            for c, values in columns.items():
+                if schema[c] == INT and (c in plain or _exact_integers(values).all()):
+                    columns[c] = values.astype(np.int64)
+            return pd.DataFrame(columns, copy=False)
     types = {c: (pa.string() if t == STR else pa.float64()) for c, t in schema.items()}
     try:
         table = pcsv.read_csv(path, read_options=pcsv.ReadOptions(use_threads=PARSE_THREADS),
@@ -229,9 +246,14 @@ def _locate_type_error(path: Path, schema: dict) -> None:
 def _check_missing(path: Path, df: pd.DataFrame, schema: dict) -> None:
     for c, t in schema.items():
         col = df[c]
-        bad = col.isna().to_numpy().copy()
-        if t in (FLOAT, INT):
-            bad |= ~np.isfinite(col.to_numpy(dtype=float, na_value=np.nan))
+        if col.dtype.kind in "iu":
+            continue  # integers are never missing nor infinite
+        if col.dtype.kind == "f":
+            bad = ~np.isfinite(col.to_numpy())
+        else:
+            bad = col.isna().to_numpy().copy()
+            if t in (FLOAT, INT):
+                bad |= ~np.isfinite(col.to_numpy(dtype=float, na_value=np.nan))
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
             what = "missing value (NaN)" if pd.isna(col.iloc[r]) else f"non-finite value {float(col.iloc[r]):g}"
@@ -317,7 +339,8 @@ def _check_plausibility(rec: Recording) -> None:
                 r = bad[0]
                 raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: |{col[r]:g}| {what} exceeds "
                                        f"{bound:g} {what} {hint}")
-    direction = rec.tracks_meta.set_index("id")["drivingDirection"].reindex(t["id"]).to_numpy()
+    direction = rec.tracks_meta["drivingDirection"].to_numpy()[positions(rec.tracks_meta["id"].to_numpy(),
+                                                                         t["id"].to_numpy())]
     centre = (t["y"] + t["height"] / 2).to_numpy()
     margin = PLAUSIBILITY["outside_markings"]
     for d, marks in ((1, rec.upper_markings), (2, rec.lower_markings)):
@@ -350,11 +373,40 @@ def _check_tracks_meta(path: Path, tmeta: pd.DataFrame) -> None:
                                f"a vehicle has at least one frame")
 
 
+def positions(keys: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """The index in ``keys`` (distinct integers, e.g. tracksMeta's ids) of each query value; -1 where absent.
+
+    HighD numbers vehicles 1..N, so a dense table answers in one gather; ids spread wider (or
+    negative) are searched in sorted order instead.
+    """
+    keys, query = np.asarray(keys, dtype=np.int64), np.asarray(query, dtype=np.int64)
+    if not len(keys):
+        return np.full(len(query), -1, dtype=np.int64)
+    low, high = int(keys.min()), int(keys.max())
+    if low >= 0 and high <= 4 * len(keys) + 1024:
+        table = np.full(high + 2, -1, dtype=np.int64)  # the last slot answers every id outside [0, high]
+        table[keys] = np.arange(len(keys))
+        return table[np.where((query >= 0) & (query <= high), query, high + 1)]
+    order = np.argsort(keys, kind="stable")
+    at = np.minimum(np.searchsorted(keys[order], query), len(keys) - 1)
+    return np.where(keys[order][at] == query, order[at], -1)
+
+
+def track_order(ids: np.ndarray, frames: np.ndarray) -> np.ndarray | None:
+    """The rows sorted by (id, frame), or None when they already are, strictly (HighD's own order)."""
+    same = ids[1:] == ids[:-1]
+    if np.all((ids[1:] > ids[:-1]) | (same & (frames[1:] > frames[:-1]))):
+        return None
+    return np.lexsort((frames, ids))
+
+
 def _check_tracks(path: Path, rec: Recording) -> None:
     t = rec.tracks
     ids, frames = t["id"].to_numpy(), t["frame"].to_numpy()
-    order = np.lexsort((frames, ids))
-    si, sf = ids[order], frames[order]
+    order = track_order(ids, frames)
+    si, sf = (ids, frames) if order is None else (ids[order], frames[order])
+    if order is None:
+        order = np.arange(len(ids))
     same = si[1:] == si[:-1]
     dup = np.flatnonzero(same & (sf[1:] == sf[:-1]))
     if len(dup):
@@ -367,22 +419,26 @@ def _check_tracks(path: Path, rec: Recording) -> None:
         raise HighDFormatError(f"{path}: line {_line(path, order[k + 1])}: track {si[k]} jumps from frame {sf[k]} "
                                f"to frame {sf[k + 1]}")
     known = rec.tracks_meta.set_index("id")
-    unknown = np.flatnonzero(~np.isin(ids, known.index.to_numpy()))
+    meta_ids = known.index.to_numpy()
+    meta_row = positions(meta_ids, ids)
+    unknown = np.flatnonzero(meta_row < 0)
     if len(unknown):
         r = unknown[0]
         raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'id': vehicle {ids[r]} is not in "
                                f"{file_name(rec.id, 'tracksMeta')}")
-    counts = pd.Series(ids).value_counts().reindex(known.index, fill_value=0)
-    firsts = pd.Series(frames).groupby(ids).min().reindex(known.index)
-    wrong = (counts != known["numFrames"]) | ((counts > 0) & (firsts != known["initialFrame"]))
+    starts = np.flatnonzero(np.concatenate(([True], ~same)))  # each track's first row in (id, frame) order
+    track_ids, lengths = si[starts], np.diff(np.append(starts, len(si)))
+    at = np.minimum(np.searchsorted(track_ids, meta_ids), len(track_ids) - 1)
+    seen = track_ids[at] == meta_ids
+    counts, firsts = np.where(seen, lengths[at], 0), np.where(seen, sf[starts][at], -1)
+    wrong = (counts != known["numFrames"].to_numpy()) | (seen & (firsts != known["initialFrame"].to_numpy()))
     if wrong.any():
-        vid = wrong.index[np.argmax(wrong.to_numpy())]
-        row = known.loc[vid]
-        first = int(firsts[vid]) if counts[vid] else -1
-        raise HighDFormatError(f"{rec.paths['tracksMeta']}: vehicle {vid}: numFrames "
+        i = int(np.argmax(wrong))
+        row = known.iloc[i]
+        raise HighDFormatError(f"{rec.paths['tracksMeta']}: vehicle {meta_ids[i]}: numFrames "
                                f"{int(row['numFrames'])} / initialFrame {int(row['initialFrame'])} disagree "
-                               f"with {path.name} ({int(counts[vid])} frames from {first})")
-    direction = known["drivingDirection"].reindex(ids).to_numpy()
+                               f"with {path.name} ({int(counts[i])} frames from {int(firsts[i])})")
+    direction = known["drivingDirection"].to_numpy()[meta_row]
     lanes = t["laneId"].to_numpy()
     for d in (1, 2):
         ok = np.isin(lanes, rec.lanes_of(d))
@@ -393,7 +449,7 @@ def _check_tracks(path: Path, rec: Recording) -> None:
                                    f"{ids[r]} (direction {d}); the markings give lanes {rec.lanes_of(d)}")
     for c in ("precedingId", "followingId"):
         col = t[c].to_numpy()
-        bad = np.flatnonzero((col != 0) & ~np.isin(col, known.index.to_numpy()))
+        bad = np.flatnonzero((col != 0) & (positions(meta_ids, col) < 0))
         if len(bad):
             r = bad[0]
             raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: vehicle {col[r]} is not in "
