@@ -1,13 +1,17 @@
-"""Compiled run-time queries of the closed-form car-following set: the floor and its bisections.
+"""Compiled run-time queries of the closed-form car-following set: the floor, its bisections, the
+self-safety of recorded inputs, and RSS's longitudinal check beside them.
 
-The same arithmetic, in the same order, as ``car_following._floor_scalar`` and ``_boundary`` (a test
-checks them equal bit for bit); only the interpreter's cost is gone. The guardian asks these a few
-times per simulation step, and the HighD replay once per lane change and ρ̂.
+The same arithmetic, in the same order, as ``car_following._floor_scalar`` and ``_boundary``, as the
+array expressions of ``headway_floor`` and of the replay's self-safety check, and as
+``rss.safe_distance`` (tests check them equal bit for bit); only the interpreter's and the
+temporaries' cost is gone. The guardian asks these a few times per simulation step, the HighD
+replay once per lane change and ρ̂, and once per test data point (8 M on HighD's size).
 """
 from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 
@@ -37,6 +41,15 @@ def floor(ae, aL, dt, v, h, vL):
 
 
 @njit(cache=True)
+def floor_many(ae, aL, dt, v, h, vL):
+    """``floor`` of each state: ``headway_floor`` of 1-D arrays with finite speeds."""
+    out = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        out[i] = floor(ae, aL, dt, v[i], h[i], vL[i])
+    return out
+
+
+@njit(cache=True)
 def _bisect(ae, aL, dt, a, b, threshold, top, iterations, over_lead):
     """Bisection on ``[0, top]`` of ``floor >= threshold``, over the ego speed (state ``(s, a, b)`` =
     ``(v, h, vL)``) or over the lead speed (``(a, b, s)`` = ``(v, h, vL)``); ``(last safe, first unsafe)``
@@ -60,3 +73,45 @@ def highest_safe_speed(ae, aL, dt, h, vL, threshold, top, iterations):
 def lowest_safe_lead_speed(ae, aL, dt, v, h, threshold, top, iterations):
     """The first lead speed with ``floor >= threshold`` (``_boundary(not safe, top)[1]``)."""
     return _bisect(ae, aL, dt, v, h, threshold, top, iterations, True)[1]
+
+
+@njit(cache=True)
+def _finite(x):
+    """``np.nan_to_num`` of one float: NaN -> 0, ±inf -> ±the largest double."""
+    if math.isnan(x):
+        return 0.0
+    if math.isinf(x):
+        return 1.7976931348623157e308 if x > 0 else -1.7976931348623157e308
+    return x
+
+
+@njit(cache=True)
+def unsafe_inputs(ae, aL, dt, u_min, u_max, d_min, v_max, h_min, v, h, vL, u):
+    """Per recorded point: the input is not self-safe (7.4), i.e. outside ``U`` or ``f(x, u, D) ⊄ C``.
+
+    ``h = inf`` is a free road (``vL`` then ignored). The vectorised form is the test's referee.
+    """
+    out = np.empty(v.shape[0], dtype=np.bool_)
+    for i in range(v.shape[0]):
+        v_next = v[i] + dt * u[i]
+        ok = u[i] >= u_min and u[i] <= u_max and v_next >= 0 and v_next <= v_max
+        if math.isfinite(h[i]):
+            lead = _finite(vL[i])
+            h_next = h[i] + dt * (lead - v[i])
+            lead_next = max(lead + dt * d_min, 0.0)
+            inside = floor(ae, aL, dt, min(max(v_next, 0.0), v_max), h_next, min(max(lead_next, 0.0), v_max)) >= h_min
+            ok = ok and inside and lead <= v_max
+        out[i] = not ok
+    return out
+
+
+@njit(cache=True)
+def rss_violations(rho, accel, brake_min, brake_max, v, h, v_lead):
+    """Per point: a leader (finite ``h``) nearer than RSS's safe distance (``rss.safe_distance``)."""
+    offset = 0.5 * accel * rho ** 2
+    out = np.zeros(v.shape[0], dtype=np.bool_)
+    for i in range(v.shape[0]):
+        if math.isfinite(h[i]):
+            d = v[i] * rho + offset + (v[i] + rho * accel) ** 2 / (2 * brake_min) - v_lead[i] ** 2 / (2 * brake_max)
+            out[i] = h[i] < max(d, 0.0)
+    return out

@@ -113,8 +113,19 @@ def _floor_scalar(p: CarFollowingParams, v: float, h: float, vL: float) -> float
 
 
 def headway_floor(p: CarFollowingParams, v, h, vL):
-    """``min_t Φ_t``: the smallest headway when both cars brake as hard as they may."""
+    """``min_t Φ_t``: the smallest headway when both cars brake as hard as they may.
+
+    Finite speeds in 1-D arrays take the compiled loop (``_kernels.floor``: the same arithmetic in the
+    same order, equal bit for bit, tested); anything else the array expression below.
+    """
     v, h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL))
+    if v.ndim == 1 and np.isfinite(v).all() and np.isfinite(vL).all():
+        return _kernels.floor_many(p.ego_step, p.lead_step, p.dt, np.ascontiguousarray(v),
+                                   np.ascontiguousarray(h), np.ascontiguousarray(vL))
+    return _headway_floor_arrays(p, v, h, vL)
+
+
+def _headway_floor_arrays(p: CarFollowingParams, v, h, vL):
     ae, aL = p.ego_step, p.lead_step
     ke, kL = np.ceil(v / ae), np.ceil(vL / aL)
     t1, t_end = np.minimum(ke, kL), np.maximum(ke, kL)
@@ -191,7 +202,10 @@ class MaximalSet:
             return 0.0 if 0 <= v <= p.v_max else math.inf
         if not 0 <= v <= p.v_max:
             return math.inf
-        safe = lambda s: _floor_scalar(p, v, h, s) >= p.h_min + INNER  # noqa: E731 - monotone in s
+
+        def safe(s):  # monotone in s; the compiled floor, equal to _floor_scalar bit for bit
+            return _kernels.floor(p.ego_step, p.lead_step, p.dt, float(v), float(h), s) >= p.h_min + INNER
+
         if safe(0.0):
             return 0.0
         if not safe(p.v_max):
@@ -206,7 +220,10 @@ class MaximalSet:
             return [(0.0, p.v_max)]
         if not 0 <= vL <= p.v_max:
             return []
-        safe = lambda s: _floor_scalar(p, s, h, vL) >= p.h_min + INNER  # noqa: E731 - monotone in s
+
+        def safe(s):  # monotone in s; the compiled floor, equal to _floor_scalar bit for bit
+            return _kernels.floor(p.ego_step, p.lead_step, p.dt, s, float(h), float(vL)) >= p.h_min + INNER
+
         if not safe(0.0):
             return []
         if safe(p.v_max):

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from itha import _kernels
+
 
 @dataclass(frozen=True)
 class RSSParams:
@@ -48,12 +50,14 @@ def safe_distance(p: RSSParams, v_rear, v_front):
 
 
 def longitudinal_violations(p: RSSParams, v, h, v_lead) -> np.ndarray:
-    """Per data point: a leader exists (finite gap ``h``) and ``h < d_min(v, v_lead)``."""
-    h = np.asarray(h, float)
-    lead = np.isfinite(h)
-    out = np.zeros(h.shape, dtype=bool)
-    out[lead] = h[lead] < safe_distance(p, np.asarray(v, float)[lead], np.asarray(v_lead, float)[lead])
-    return out
+    """Per data point: a leader exists (finite gap ``h``) and ``h < d_min(v, v_lead)``.
+
+    Compiled (``itha._kernels.rss_violations``: ``safe_distance``'s arithmetic in its order, equal bit
+    for bit, tested); arrays of any one shape.
+    """
+    v, h, v_lead = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, v_lead))
+    flat = [np.ascontiguousarray(a).ravel() for a in (v, h, v_lead)]
+    return _kernels.rss_violations(p.response_time, p.accel_max, p.brake_min, p.brake_max, *flat).reshape(h.shape)
 
 
 def cut_in_safe(p: RSSParams, pos, v, lane, length, ego: int, target_lane: int) -> bool:

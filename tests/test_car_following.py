@@ -129,3 +129,22 @@ def test_contains_of_one_state_is_the_vectorised_answer():
     batch = S.contains(X)
     assert batch.any() and not batch.all()
     assert [bool(S.contains(x[None])[0]) for x in X] == batch.tolist()
+
+
+@pytest.mark.parametrize("params", [CarFollowingParams(), CarFollowingParams(dt=0.04, u_min=-6.0, u_max=4.0,
+                                                                             d_min=-0.5, d_max=0.5, v_max=60.0,
+                                                                             h_min=2.0),
+                                    CarFollowingParams(u_min=-3.0, d_min=-8.0)])
+def test_the_compiled_headway_floor_is_the_array_expression_bit_for_bit(params):
+    """headway_floor's compiled loop (finite 1-D speeds) against its array expression, on random
+    states and on speeds that are whole multiples of a braking step (where the candidates tie)."""
+    from itha.car_following import _headway_floor_arrays
+
+    p, rng, n = params, np.random.default_rng(5), 200_000
+    v, vL = rng.uniform(0, p.v_max, n), rng.uniform(0, p.v_max, n)
+    v[::3] = p.ego_step * rng.integers(0, int(p.v_max / p.ego_step), len(v[::3]))
+    vL[::4] = p.lead_step * rng.integers(0, int(p.v_max / p.lead_step), len(vL[::4]))
+    h = rng.uniform(-5, 150, n)
+    h[::7] = np.inf  # no lead
+    fast, reference = headway_floor(p, v, h, vL), _headway_floor_arrays(p, v, h, vL)
+    assert np.array_equal(fast, reference) and np.array_equal(np.signbit(fast), np.signbit(reference))

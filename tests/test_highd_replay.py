@@ -9,6 +9,7 @@ from guardian.highd.generate import TrafficParams, generate
 from guardian.highd.reader import read_recording
 from guardian.highd.replay import (ReplayConfig, car_following_params, default_sample, order_statistic_bounds,
                                    replay, self_safety_overrides)
+from itha.car_following import _headway_floor_arrays, headway_floor
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +66,35 @@ def test_self_safety_override_cases():
                                  vL=[20, 30, np.nan, np.nan, 30], u=[0, 0, 0, 9.0, -7.0])
     # closing fast at 3 m; comfortable; free road; free road but u > u_max; u < u_min
     assert over.tolist() == [True, False, False, True, True]
+
+
+def _self_safety_arrays(p, v, h, vL, u):
+    """(7.4) as array expressions: the referee of the compiled check."""
+    v_next = v + p.dt * u
+    ok = (u >= p.u_min) & (u <= p.u_max) & (v_next >= 0) & (v_next <= p.v_max)
+    lead = np.isfinite(h)
+    h_next = np.where(lead, h + p.dt * (np.nan_to_num(vL) - v), 0.0)
+    vL_next = np.where(lead, np.maximum(np.nan_to_num(vL) + p.dt * p.d_min, 0.0), 0.0)
+    inside = _headway_floor_arrays(p, np.clip(v_next, 0, p.v_max), h_next, np.clip(vL_next, 0, p.v_max)) >= p.h_min
+    ok &= np.where(lead, inside & (np.nan_to_num(vL) <= p.v_max), True)
+    return ~ok
+
+
+def test_the_compiled_self_safety_check_is_the_array_expression():
+    """On states near C's boundary (the headway set a little either side of the floor after one step),
+    inputs at and beyond U's ends, free roads and leads above v_max."""
+    p = car_following_params(ReplayConfig(), 0.04, (-0.5, 0.5))
+    rng = np.random.default_rng(12)
+    n = 400_000
+    v, vL = rng.uniform(0, p.v_max, n), rng.uniform(0, p.v_max, n)
+    u = rng.uniform(p.u_min - 1, p.u_max + 1, n)
+    u[::9], u[1::9] = p.u_min, p.u_max
+    h = headway_floor(p, v, np.zeros(n), vL) * -1 + p.h_min + rng.normal(0, 0.5, n)
+    h[::6], vL[::6] = np.inf, np.nan
+    vL[1::11] = p.v_max + 1
+    got = self_safety_overrides(p, v, h, vL, u)
+    assert np.array_equal(got, _self_safety_arrays(p, v, h, vL, u))
+    assert 0.05 < got.mean() < 0.95  # both answers are exercised
 
 
 def test_replay_contract_and_rates(folder):

@@ -56,3 +56,18 @@ def test_replay_reports_rss_beside_itha():
             "rss_longitudinal_calibrated", "rss_cut_in", "rss_cut_in_calibrated"} <= set(rates)
     assert rates["rss_longitudinal"] > rates["self_safety"]  # ρ = 1 s against one data step
     assert r["rss_params"]["default"] == {"response_time": 1.0, "accel_max": 3.5, "brake_min": 4.0, "brake_max": 8.0}
+
+
+def test_the_compiled_check_is_safe_distance_bit_for_bit():
+    """longitudinal_violations runs compiled; safe_distance's array expression is its referee."""
+    rng = np.random.default_rng(9)
+    n = 300_000
+    v, v_lead = rng.uniform(0, 45, n), rng.uniform(0, 45, n)
+    h = rng.uniform(0, 250, n)
+    h[::5] = np.inf  # no leader
+    for p in (RSSParams(), RSSParams(response_time=0.04, accel_max=2.0, brake_min=6.0, brake_max=7.5)):
+        d = safe_distance(p, v, v_lead)
+        h[1::5] = d[1::5]  # exactly at the safe distance: not a violation
+        expected = np.isfinite(h) & (h < np.where(np.isfinite(h), d, 0.0))
+        assert np.array_equal(longitudinal_violations(p, v, h, v_lead), expected)
+        assert longitudinal_violations(p, v.reshape(-1, 2), h.reshape(-1, 2), v_lead.reshape(-1, 2)).shape == (n // 2, 2)

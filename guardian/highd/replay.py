@@ -36,7 +36,8 @@ from guardian.highd.cache import load_itha_view
 from guardian.highd.reader import recording_files, recording_ids
 from rcis.cache import default_cache_dir
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
-from itha.car_following import CarFollowingParams, MaximalSet, headway_floor
+from itha import _kernels
+from itha.car_following import CarFollowingParams, MaximalSet
 from itha.highway import EgoSupervisor, HighwayParams
 
 SPEED_BANDS = (0.0, 20.0, 30.0, math.inf)  # m/s: context = (lane, speed band)
@@ -151,16 +152,14 @@ class Training:
 
 
 def self_safety_overrides(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
-    """Boolean per point: the recorded input is not self-safe (7.4)."""
-    v, h, vL, u = (np.asarray(a, float) for a in (v, h, vL, u))
-    v_next = v + p.dt * u
-    ok = (u >= p.u_min) & (u <= p.u_max) & (v_next >= 0) & (v_next <= p.v_max)
-    lead = np.isfinite(h)
-    h_next = np.where(lead, h + p.dt * (np.nan_to_num(vL) - v), 0.0)
-    vL_next = np.where(lead, np.maximum(np.nan_to_num(vL) + p.dt * p.d_min, 0.0), 0.0)
-    inside = headway_floor(p, np.clip(v_next, 0, p.v_max), h_next, np.clip(vL_next, 0, p.v_max)) >= p.h_min
-    ok &= np.where(lead, inside & (np.nan_to_num(vL) <= p.v_max), True)
-    return ~ok
+    """Boolean per point: the recorded input is not self-safe (7.4): outside ``U``, or the next state
+    under the worst lead (full braking ``d_min``) leaves C. ``h = inf``: no lead, only ``U`` and the
+    speed limits apply. Compiled (``itha._kernels.unsafe_inputs``); the test's referee is the array form.
+    """
+    v, h, vL, u = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL, u))
+    flat = [np.ascontiguousarray(a).ravel() for a in (v, h, vL, u)]
+    return _kernels.unsafe_inputs(p.ego_step, p.lead_step, p.dt, p.u_min, p.u_max, p.d_min, p.v_max, p.h_min,
+                                  *flat).reshape(h.shape)
 
 
 def responsibility_overrides(p: CarFollowingParams, events, overapprox: str) -> int:
@@ -192,10 +191,11 @@ CHUNK = 1 << 20  # points evaluated at once: bounds the temporaries of the vecto
 
 
 def _overrides_chunked(p: CarFollowingParams, test: ITHAData, mask=None) -> np.ndarray:
-    idx = np.arange(len(test.v)) if mask is None else np.flatnonzero(mask)
-    out = np.empty(len(idx), dtype=bool)
-    for a in range(0, len(idx), CHUNK):
-        k = idx[a:a + CHUNK]
+    n = len(test.v) if mask is None else int(np.count_nonzero(mask))
+    idx = None if mask is None else np.flatnonzero(mask)
+    out = np.empty(n, dtype=bool)
+    for a in range(0, n, CHUNK):
+        k = slice(a, a + CHUNK) if idx is None else idx[a:a + CHUNK]
         out[a:a + CHUNK] = self_safety_overrides(p, test.v[k], test.h[k], test.vL[k], test.u[k])
     return out
 
