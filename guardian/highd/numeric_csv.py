@@ -72,7 +72,11 @@ def _read_with_sentinel(path: Path) -> np.ndarray:
 @njit(cache=True)
 def _parse(buf, i, out, plain, pow10):
     """Rows parsed into ``out[:, :rows]``, ``plain[col]`` cleared where a field has a point or an exponent;
-    0 if any byte falls outside the simple form (or there is no row). ``buf[-1]`` is a 0 sentinel."""
+    0 if any byte falls outside the simple form (or there is no row). ``buf[-1]`` is a 0 sentinel.
+
+    The digit loops are written out: one shared helper made this kernel 50 % slower (0.25 against
+    0.17 s per 75 MB file, measured).
+    """
     n, ncols, capacity = len(buf) - 1, out.shape[0], out.shape[1]
     row = 0
     while i < n:
