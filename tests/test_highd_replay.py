@@ -53,6 +53,62 @@ def test_inputs_and_disturbances_are_forward_differences(folder):
     assert len(e.p) == len(e.v) == len(e.lane) == len(e.length) > 1
 
 
+ID_COLUMNS = ("id", "precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
+              "rightPrecedingId", "rightAlongsideId", "rightFollowingId")
+
+
+def _copy_recording(folder, out, tracks=lambda t: t, tracks_meta=lambda m: m):
+    import shutil
+
+    import pandas as pd
+
+    out.mkdir()
+    shutil.copy(folder / "01_recordingMeta.csv", out / "01_recordingMeta.csv")
+    tracks(pd.read_csv(folder / "01_tracks.csv")).to_csv(out / "01_tracks.csv", index=False)
+    tracks_meta(pd.read_csv(folder / "01_tracksMeta.csv")).to_csv(out / "01_tracksMeta.csv", index=False)
+    return out
+
+
+def _same_itha(a, b, vehicle=lambda v: v) -> None:
+    for k in ("frame", "direction", "lane", "v", "h", "vL", "u", "d"):
+        assert getattr(a, k).tobytes() == getattr(b, k).tobytes(), k
+    assert np.array_equal(vehicle(a.vehicle), b.vehicle)
+    assert [(vehicle(np.array([e.vehicle]))[0], e.frame, e.trigger) for e in a.lane_changes] == \
+        [(e.vehicle, e.frame, e.trigger) for e in b.lane_changes]
+
+
+def test_conversion_does_not_depend_on_row_order_or_id_numbering(folder, tmp_path):
+    """HighD files come sorted by (id, frame) with ids 1..N, which the fast paths use (no sort, a dense
+    id table); shuffled rows and ids spread over 10^12 take the general paths and must agree."""
+    original = to_itha(read_recording(folder, 1))
+    rng = np.random.default_rng(4)
+    shuffled = _copy_recording(folder, tmp_path / "shuffled",
+                               tracks=lambda t: t.iloc[rng.permutation(len(t))],
+                               tracks_meta=lambda m: m.iloc[rng.permutation(len(m))])
+    _same_itha(original, to_itha(read_recording(shuffled, 1)))
+
+    def spread(v):
+        return np.where(v != 0, v * 1_000_003_001 + 7, 0)
+
+    def respread(t):
+        return t.assign(**{c: spread(t[c].to_numpy()) for c in ID_COLUMNS if c in t})
+
+    wide = _copy_recording(folder, tmp_path / "wide", tracks=respread,
+                           tracks_meta=lambda m: respread(m).iloc[rng.permutation(len(m))])
+    _same_itha(original, to_itha(read_recording(wide, 1)), vehicle=spread)
+
+
+def test_positions_finds_each_id_or_says_absent():
+    """``reader.positions`` against a dict, through the dense table and through the sorted search."""
+    from guardian.highd.reader import positions
+
+    rng = np.random.default_rng(6)
+    for keys in (rng.permutation(np.arange(1, 500)), rng.choice(10 ** 12, 500, replace=False) - 10 ** 11):
+        query = np.concatenate([rng.choice(keys, 2000), rng.integers(-10 ** 12, 10 ** 12, 50), [-1, 0, 10 ** 15]])
+        index = {int(k): i for i, k in enumerate(keys)}
+        assert positions(keys, query).tolist() == [index.get(int(q), -1) for q in query]
+
+
 def test_order_statistics_follow_the_dissertation():
     d = np.arange(1, 41, dtype=float)  # N = 40: ⌈0.025 N⌉ = 1, ⌈0.975 N⌉ = 39
     assert order_statistic_bounds(d, (0.025, 0.975)) == (1.0, 39.0)
