@@ -32,6 +32,7 @@ def test_the_fast_readers_give_the_tables_pandas_gives(folder, monkeypatch):
     for kind, schema in FILES.items():  # clean files take the fast path
         path = folder / f"01_{kind}.csv"
         assert reader._read_clean_csv(path, schema) is not None, kind
+    assert reader.read_numeric_csv(folder / "01_tracks.csv", list(FILES["tracks"])) is not None  # the compiled one
     fresh = read_recording(folder, 1)
     monkeypatch.setattr(reader, "read_numeric_csv", lambda *a: None)  # pyarrow for every file
     same_recording(fresh, read_recording(folder, 1))
