@@ -125,6 +125,19 @@ def headway_floor(p: CarFollowingParams, v, h, vL):
     return _headway_floor_arrays(p, v, h, vL)
 
 
+def unsafe_inputs(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
+    """Per recorded point, whether the input is not self-safe (7.4): outside ``U``, or the next state
+    under the worst lead (full braking ``d_min``) leaves C (``headway_floor < h_min``), or the lead is
+    faster than ``v_max``. ``h = inf``: no lead, only ``U`` and the speed limits apply.
+
+    Compiled (``_kernels.unsafe_inputs``); its referee in the tests is the array expression.
+    """
+    v, h, vL, u = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL, u))
+    flat = [np.ascontiguousarray(a).ravel() for a in (v, h, vL, u)]
+    return _kernels.unsafe_inputs(p.ego_step, p.lead_step, p.dt, p.u_min, p.u_max, p.d_min, p.v_max, p.h_min,
+                                  *flat).reshape(h.shape)
+
+
 def _headway_floor_arrays(p: CarFollowingParams, v, h, vL):
     ae, aL = p.ego_step, p.lead_step
     ke, kL = np.ceil(v / ae), np.ceil(vL / aL)

@@ -154,6 +154,8 @@ MAX_EXACT_INT = 2.0 ** 53  # integers read as float64 are exact up to this
 def _exact_integers(col: np.ndarray) -> np.ndarray:
     """Which float64 values are integers that int64 holds exactly."""
     return (col == np.round(col)) & (np.abs(col) <= MAX_EXACT_INT)
+
+
 PARSE_THREADS = True  # pyarrow parses with its thread pool; replay's worker processes turn it off (one core each)
 
 
@@ -163,6 +165,7 @@ def _read_clean_csv(path: Path, schema: dict) -> pd.DataFrame | None:
     An all-numeric file (the tracks) goes through ``numeric_csv``'s compiled reader, which returns
     pyarrow's doubles bit for bit or declines; otherwise, or when it declines, pyarrow's
     multi-threaded CSV reader.
+
     Clean means: the header holds exactly the schema's columns, pyarrow parses every value as the
     schema's type (strings checked as UTF-8, numbers are ASCII), and no value is missing. Anything
     else (a bad value or byte, a short row, an empty field, a stray quote, a BOM, an empty file)

@@ -36,8 +36,7 @@ from guardian.highd.cache import load_itha_view
 from guardian.highd.reader import recording_files, recording_ids
 from rcis.cache import default_cache_dir
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
-from itha import _kernels
-from itha.car_following import CarFollowingParams, MaximalSet
+from itha.car_following import CarFollowingParams, MaximalSet, unsafe_inputs
 from itha.highway import EgoSupervisor, HighwayParams
 
 SPEED_BANDS = (0.0, 20.0, 30.0, math.inf)  # m/s: context = (lane, speed band)
@@ -152,14 +151,8 @@ class Training:
 
 
 def self_safety_overrides(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
-    """Boolean per point: the recorded input is not self-safe (7.4): outside ``U``, or the next state
-    under the worst lead (full braking ``d_min``) leaves C. ``h = inf``: no lead, only ``U`` and the
-    speed limits apply. Compiled (``itha._kernels.unsafe_inputs``); the test's referee is the array form.
-    """
-    v, h, vL, u = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL, u))
-    flat = [np.ascontiguousarray(a).ravel() for a in (v, h, vL, u)]
-    return _kernels.unsafe_inputs(p.ego_step, p.lead_step, p.dt, p.u_min, p.u_max, p.d_min, p.v_max, p.h_min,
-                                  *flat).reshape(h.shape)
+    """Boolean per point: the recorded input is not self-safe (7.4) (``car_following.unsafe_inputs``)."""
+    return unsafe_inputs(p, v, h, vL, u)
 
 
 def responsibility_overrides(p: CarFollowingParams, events, overapprox: str) -> int:
