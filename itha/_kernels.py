@@ -75,6 +75,13 @@ def lowest_safe_lead_speed(ae, aL, dt, v, h, threshold, top, iterations):
     return _bisect(ae, aL, dt, v, h, threshold, top, iterations, True)[1]
 
 
+def flat_floats(*arrays):
+    """The arrays broadcast together, as contiguous 1-D float64 arrays for the loops below, and
+    the shape to give their answers back in."""
+    arrays = [np.asarray(a, float) for a in np.broadcast_arrays(*arrays)]
+    return arrays[0].shape, [np.ascontiguousarray(a).ravel() for a in arrays]
+
+
 @njit(cache=True)
 def _finite(x):
     """``np.nan_to_num`` of one float: NaN -> 0, ±inf -> ±the largest double."""
@@ -99,7 +106,7 @@ def unsafe_inputs(ae, aL, dt, u_min, u_max, d_min, v_max, h_min, v, h, vL, u):
             lead = _finite(vL[i])
             h_next = h[i] + dt * (lead - v[i])
             lead_next = max(lead + dt * d_min, 0.0)
-            inside = floor(ae, aL, dt, min(max(v_next, 0.0), v_max), h_next, min(max(lead_next, 0.0), v_max)) >= h_min
+            inside = floor(ae, aL, dt, min(max(v_next, 0.0), v_max), h_next, min(lead_next, v_max)) >= h_min
             ok = ok and inside and lead <= v_max
         out[i] = not ok
     return out

@@ -132,10 +132,9 @@ def unsafe_inputs(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
 
     Compiled (``_kernels.unsafe_inputs``); its referee in the tests is the array expression.
     """
-    v, h, vL, u = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL, u))
-    flat = [np.ascontiguousarray(a).ravel() for a in (v, h, vL, u)]
+    shape, flat = _kernels.flat_floats(v, h, vL, u)
     return _kernels.unsafe_inputs(p.ego_step, p.lead_step, p.dt, p.u_min, p.u_max, p.d_min, p.v_max, p.h_min,
-                                  *flat).reshape(h.shape)
+                                  *flat).reshape(shape)
 
 
 def _headway_floor_arrays(p: CarFollowingParams, v, h, vL):

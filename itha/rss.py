@@ -55,9 +55,8 @@ def longitudinal_violations(p: RSSParams, v, h, v_lead) -> np.ndarray:
     Compiled (``itha._kernels.rss_violations``: ``safe_distance``'s arithmetic in its order, equal bit
     for bit, tested); arrays of any one shape.
     """
-    v, h, v_lead = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, v_lead))
-    flat = [np.ascontiguousarray(a).ravel() for a in (v, h, v_lead)]
-    return _kernels.rss_violations(p.response_time, p.accel_max, p.brake_min, p.brake_max, *flat).reshape(h.shape)
+    shape, flat = _kernels.flat_floats(v, h, v_lead)
+    return _kernels.rss_violations(p.response_time, p.accel_max, p.brake_min, p.brake_max, *flat).reshape(shape)
 
 
 def cut_in_safe(p: RSSParams, pos, v, lane, length, ego: int, target_lane: int) -> bool:

@@ -72,11 +72,7 @@ def _read_with_sentinel(path: Path) -> np.ndarray:
 @njit(cache=True)
 def _parse(buf, i, out, plain, pow10):
     """Rows parsed into ``out[:, :rows]``, ``plain[col]`` cleared where a field has a point or an exponent;
-    0 if any byte falls outside the simple form (or there is no row). ``buf[-1]`` is a 0 sentinel.
-
-    The digit loops are written out: one shared helper made this kernel 50 % slower (0.25 against
-    0.17 s per 75 MB file, measured).
-    """
+    0 if any byte falls outside the simple form (or there is no row). ``buf[-1]`` is a 0 sentinel."""
     n, ncols, capacity = len(buf) - 1, out.shape[0], out.shape[1]
     row = 0
     while i < n:
@@ -86,25 +82,24 @@ def _parse(buf, i, out, plain, pow10):
             negative = buf[i] == _MINUS
             if negative:
                 i += 1
-            m, k, start = 0, 0, i
-            while _ZERO <= buf[i] <= _NINE:  # the sentinel stops it
-                m = m * 10 + (buf[i] - _ZERO)
-                if m > _EXACT:
-                    return 0
-                i += 1
-            if i == start:
-                return 0
-            if buf[i] == _DOT:
-                i += 1
-                start = i
-                while _ZERO <= buf[i] <= _NINE:
-                    m = m * 10 + (buf[i] - _ZERO)
+            m, digits, point = 0, 0, -1  # point: the digits before the decimal point, -1 without one
+            while True:  # the sentinel stops it
+                c = buf[i]
+                if _ZERO <= c <= _NINE:
+                    m = m * 10 + (c - _ZERO)
                     if m > _EXACT:
                         return 0
-                    i += 1
-                if i == start:
-                    return 0
-                k -= i - start
+                    digits += 1
+                elif c == _DOT and point < 0 and digits > 0:
+                    point = digits
+                else:
+                    break
+                i += 1
+            if digits == 0 or point == digits:  # no digit, or none after the point
+                return 0
+            k = 0
+            if point >= 0:
+                k = point - digits
                 plain[col] = False
             if buf[i] == _E or buf[i] == _e:
                 i += 1

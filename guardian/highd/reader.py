@@ -319,14 +319,15 @@ def read_recording(folder: Path, recording_id: int, plausibility: bool = True) -
     tracks = read_table(paths["tracks"], FILES["tracks"])
     rec = Recording(recording_id, folder, meta, tmeta, tracks, upper, lower, paths)
     _check_tracks_meta(paths["tracksMeta"], tmeta)
-    _check_tracks(paths["tracks"], rec)
+    direction = _check_tracks(paths["tracks"], rec)
     if plausibility:
-        _check_plausibility(rec)
+        _check_plausibility(rec, direction)
     return rec
 
 
-def _check_plausibility(rec: Recording) -> None:
-    """The rules of ``schema.PLAUSIBILITY``; each refusal names the rule and how to go on."""
+def _check_plausibility(rec: Recording, direction: np.ndarray) -> None:
+    """The rules of ``schema.PLAUSIBILITY``; each refusal names the rule and how to go on.
+    ``direction``: each tracks row's drivingDirection (``_check_tracks`` gives it)."""
     hint = "(a plausibility rule; --no-plausibility reads it anyway)"
     lo, hi = PLAUSIBILITY["frameRate"]
     if not lo <= rec.frame_rate <= hi:
@@ -342,8 +343,6 @@ def _check_plausibility(rec: Recording) -> None:
                 r = bad[0]
                 raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: |{col[r]:g}| {what} exceeds "
                                        f"{bound:g} {what} {hint}")
-    direction = rec.tracks_meta["drivingDirection"].to_numpy()[positions(rec.tracks_meta["id"].to_numpy(),
-                                                                         t["id"].to_numpy())]
     centre = (t["y"] + t["height"] / 2).to_numpy()
     margin = PLAUSIBILITY["outside_markings"]
     for d, marks in ((1, rec.upper_markings), (2, rec.lower_markings)):
@@ -403,7 +402,8 @@ def track_order(ids: np.ndarray, frames: np.ndarray) -> np.ndarray | None:
     return np.lexsort((frames, ids))
 
 
-def _check_tracks(path: Path, rec: Recording) -> None:
+def _check_tracks(path: Path, rec: Recording) -> np.ndarray:
+    """The tracks file against itself and tracksMeta; returns each row's drivingDirection."""
     t = rec.tracks
     ids, frames = t["id"].to_numpy(), t["frame"].to_numpy()
     order = track_order(ids, frames)
@@ -457,3 +457,4 @@ def _check_tracks(path: Path, rec: Recording) -> None:
             r = bad[0]
             raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: vehicle {col[r]} is not in "
                                    f"{file_name(rec.id, 'tracksMeta')}")
+    return direction
