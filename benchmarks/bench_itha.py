@@ -11,7 +11,8 @@ import json
 import time
 
 from itha.car_following import CarFollowingParams, load_or_build
-from itha.highway import HighwayParams, highway_experiment
+from itha.highway_experiment import highway_experiment
+from itha.road import HighwayParams
 
 
 def bench_7_4_1() -> dict:

@@ -12,7 +12,7 @@ own input exactly:
   is entering in its RCIS whatever that car does (the ego answers for it while the
   entry lasts, as a reset does in ITHA);
 * ``entry``: whether entering a lane is ρ̂-responsible (Definition 22, via
-  ``itha.highway.EgoSupervisor``), with the next speeds that make it so.
+  ``itha.responsibility.EgoSupervisor``), with the next speeds that make it so.
 
 A car that is changing lanes occupies both lanes.
 """
@@ -21,7 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from itha.car_following import CarFollowingParams, MaximalSet
-from itha.highway import LEFT, RIGHT, EgoSupervisor, HighwayParams
+from itha.responsibility import EgoSupervisor
+from itha.road import LEFT, RIGHT, HighwayParams
 from rcis.intervals import intersect_intervals
 
 

@@ -7,7 +7,7 @@ when ``ρ_i = ∅`` and by its reset ``R_i(t, x_i, u_i, ρ_i)`` otherwise (7.1c)
 
 This module is exact for agents whose inputs, disturbances and triggering
 actions are finite (sets are enumerated); it is the reference that the fast,
-structure-exploiting instances (``itha.processors``, ``itha.highway``) are
+structure-exploiting instances (``itha.processors``, ``itha.road`` with ``itha.responsibility``) are
 tested against. It provides
 
 * ``ITHA.step``: one execution step (Definition 18),

@@ -24,7 +24,7 @@ ENTRY_POINTS = [
     ("guardian.highd.ngsim", "convert_ngsim", True), ("guardian.service.server", "make_server", True),
     ("itha.core", "ITHA.step", True), ("itha.core", "is_self_safe", True), ("itha.core", "is_responsible", True),
     ("itha.car_following", "make_set", True), ("itha.car_following", "load_or_build", True),
-    ("itha.highway", "highway_experiment", True), ("itha.processors", "processors_experiment", True),
+    ("itha.highway_experiment", "highway_experiment", True), ("itha.processors", "processors_experiment", True),
     ("itha.idm", "idm_acceleration", True),
     ("envs.agents", "make_agent", True), ("envs.agents", "collision_fault", True),
     ("envs.overtake", "OvertakeEnv", False), ("envs.wrappers", "OvertakeGuardianWrapper", False),

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from itha.car_following import CarFollowingParams, MaximalSet, load_or_build
-from itha.highway import (LANE_SHIFT, LEFT, STAY, EgoSupervisor, HighwayParams, best_input, example8_order,
-                          highway_experiment, initial_traffic, leader, local_states, reset_state, resolution)
+from itha.controller import best_input
+from itha.highway_experiment import highway_experiment, initial_traffic
+from itha.responsibility import EgoSupervisor
+from itha.road import LANE_SHIFT, LEFT, STAY, HighwayParams, example8_order, leader, local_states, reset_state, resolution
 
 CF = CarFollowingParams()
 SMALL = HighwayParams(n_lanes=3, n_cars=5, ego_lane=2, road_window=(-30.0, 60.0))

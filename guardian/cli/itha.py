@@ -10,7 +10,9 @@ from guardian.cli.common import emit, progress_bar, positive_error
 
 def cmd_itha_highway(args) -> int:
     from itha.car_following import make_set
-    from itha.highway import OVERAPPROXIMATIONS, HighwayParams, highway_experiment, run_highway_episode
+    from itha.highway_experiment import highway_experiment, run_highway_episode
+    from itha.responsibility import OVERAPPROXIMATIONS
+    from itha.road import HighwayParams
 
     bad = positive_error(args, "runs", "steps")
     if bad:

@@ -37,7 +37,8 @@ from guardian.highd.reader import recording_files, recording_ids
 from rcis.cache import default_cache_dir
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
 from itha.car_following import CarFollowingParams, MaximalSet, unsafe_inputs
-from itha.highway import EgoSupervisor, HighwayParams
+from itha.responsibility import EgoSupervisor
+from itha.road import HighwayParams
 
 SPEED_BANDS = (0.0, 20.0, 30.0, math.inf)  # m/s: context = (lane, speed band)
 
