@@ -31,15 +31,12 @@ from highway_env.road.road import Road, RoadNetwork
 
 from envs.overtake import DISTURBANCE_MODES, draw_disturbance, sample_initial_state
 from envs.vehicles import IntentionLead, OvertakeEgo, PointMassIDM
+from guardian.errors import ConfigError
 from intention.models import intention_models, safe_set
 from intention.params import OvertakeParams
 
 INTENTIONS = ("aggressive", "cautious")
 SUPPORTED_ACTIONS = ("ContinuousAction", "DiscreteMetaAction")
-
-
-class ConfigError(ValueError):
-    """An environment configuration that cannot be simulated or supervised as asked."""
 
 
 class HighwayOvertakeEnv(AbstractEnv):

@@ -24,14 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from rcis.errors import StaleCacheError
 from rcis.polyhedron import Polyhedron
 from rcis.region import Region
 
 _ENGINE_FILES = ("lp.py", "polyhedron.py", "region.py", "pwa.py", "invariant.py")
-
-
-class StaleCacheError(RuntimeError):
-    """A cache file exists but was built from other parameters or code."""
 
 
 def default_cache_dir() -> Path:

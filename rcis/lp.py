@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import highspy
 import numpy as np
 
+from rcis.errors import LPError
+
 INF = highspy.kHighsInf
 _STATUS = highspy.HighsModelStatus
 _DEFAULT_TOL = 1e-7  # HiGHS' primal and dual feasibility tolerances
@@ -67,10 +69,6 @@ def _rowwise_pattern(m: int, n: int):
     index = np.tile(np.arange(n, dtype=np.int32), m)
     start.flags.writeable = index.flags.writeable = False
     return start, index
-
-
-class LPError(RuntimeError):
-    """HiGHS ended in a status that is neither optimal, infeasible nor unbounded."""
 
 
 @dataclass(frozen=True)

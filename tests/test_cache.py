@@ -1,9 +1,9 @@
 """The set cache heals: corrupt, truncated, foreign or unreadable entries are refused and recomputed,
 --rebuild replaces what is there, and a cache folder that cannot be written is warned about, never fatal."""
-import numpy as np
 import pytest
 
-from rcis.cache import StaleCacheError, entry_path, load_region, save_region, try_load, try_save
+from rcis.cache import entry_path, load_region, save_region, try_load, try_save
+from rcis.errors import StaleCacheError
 from intention.library import LibrarySettings, build_library, replace_settings
 from rcis.polyhedron import Polyhedron
 from rcis.region import Region

@@ -88,7 +88,8 @@ def test_params_are_validated():
 
 def test_cache_is_keyed_by_parameters(tmp_path, poly):
     from itha import car_following
-    from rcis.cache import StaleCacheError, code_fingerprint, load_region
+    from rcis.cache import code_fingerprint, load_region
+    from rcis.errors import StaleCacheError
     a = load_or_build(P, cache_dir=tmp_path)
     files = list(tmp_path.glob("car-following-*.npz"))
     assert len(files) == 1 and len(a.region) == len(poly.region)

@@ -10,7 +10,8 @@ import pytest
 
 from guardian.highd.cache import load_itha_view
 from guardian.highd.convert import to_itha
-from guardian.highd.reader import HighDFormatError, read_recording
+from guardian.errors import HighDFormatError
+from guardian.highd.reader import read_recording
 from guardian.highd.replay import default_sample, replay
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "i80_sample"

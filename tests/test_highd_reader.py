@@ -6,7 +6,8 @@ import pandas as pd
 import pytest
 
 from guardian.highd.generate import TrafficParams, generate
-from guardian.highd.reader import HighDFormatError, read_recording, recording_ids
+from guardian.errors import HighDFormatError
+from guardian.highd.reader import read_recording, recording_ids
 from guardian.highd.schema import TRACKS, TRACKS_META
 
 

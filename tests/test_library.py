@@ -109,7 +109,8 @@ def test_cache_round_trip_and_refusal(library, cache_dir, capsys):
         assert np.array_equal(again.region(n).contains(X), library.region(n).contains(X))
     # tamper with one entry: it must be refused (and rebuilt), never used
     import numpy as _np
-    from rcis.cache import StaleCacheError, entry_path, load_region
+    from rcis.cache import entry_path, load_region
+    from rcis.errors import StaleCacheError
     s = library.sets["bounded_velocity"]
     path = entry_path(cache_dir, "bounded_velocity", s.payload)
     with _np.load(path) as z:

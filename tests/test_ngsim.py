@@ -6,7 +6,8 @@ import pytest
 
 from guardian.cli import main
 from guardian.highd.ngsim import convert_ngsim
-from guardian.highd.reader import HighDFormatError, read_recording
+from guardian.errors import HighDFormatError
+from guardian.highd.reader import read_recording
 
 T0 = 1113433135300  # ms: 2005-04-13 23:38:55 UTC
 

@@ -27,7 +27,7 @@ def cmd_highd_generate(args) -> int:
 
 def cmd_data_convert_ngsim(args) -> int:
     from guardian.highd.ngsim import convert_ngsim
-    from guardian.highd.reader import HighDFormatError
+    from guardian.errors import HighDFormatError
 
     try:
         result = convert_ngsim(args.file, args.out, args.main_lanes, args.recording_id)
@@ -40,7 +40,7 @@ def cmd_data_convert_ngsim(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from guardian.highd.reader import HighDFormatError
+    from guardian.errors import HighDFormatError
     from guardian.highd.replay import ReplayConfig, car_following_params, replay, self_safety_overrides
 
     if args.workers < 1:

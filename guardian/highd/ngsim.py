@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from guardian.highd.reader import HighDFormatError
+from guardian.errors import HighDFormatError
 from guardian.highd.schema import RECORDING_META, TRACKS, TRACKS_META, file_name
 
 FEET = 0.3048

@@ -16,14 +16,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from guardian.errors import HighDFormatError
 from guardian.highd.numeric_csv import read_numeric_csv
 from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, PLAUSIBILITY, STR, file_name
 
 FILE_PATTERN = re.compile(r"^(\d+)_(recordingMeta|tracksMeta|tracks)\.csv$")
-
-
-class HighDFormatError(ValueError):
-    """A HighD-format file is malformed; the message says where."""
 
 
 @dataclass

@@ -13,23 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from guardian.errors import ServiceError
 from guardian.supervisor import IntentionAwareGuardian
 
 PRIORITY_NAMES = {"throttle": 0, "steering": 1}
 EXPIRED_MEMORY = 100_000  # expired ids remembered (older ones become "unknown")
-
-
-class ServiceError(Exception):
-    """An error with the HTTP status a client should see."""
-
-    def __init__(self, status: int, message: str, **extra):
-        super().__init__(message)
-        self.status = status
-        self.message = message
-        self.extra = extra
-
-    def body(self) -> dict:
-        return {"error": self.message, **self.extra}
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,37 @@
+"""Every exception type a guardian user can meet, importable from here.
+
+Each subclasses a builtin, so ``except ValueError`` still catches a bad file or configuration:
+
+* ``ConfigError`` (``ValueError``): an environment configuration that cannot be simulated or
+  supervised as asked;
+* ``HighDFormatError`` (``ValueError``): a HighD-format file is malformed; the message says where;
+* ``ServiceError`` (``Exception``): a refused service request, with the HTTP status a client sees;
+* ``LPError``, ``StaleCacheError`` (``RuntimeError``): the engine's (``rcis.errors``), re-exported.
+"""
+from __future__ import annotations
+
+from rcis.errors import LPError, StaleCacheError
+
+
+class ConfigError(ValueError):
+    """An environment configuration that cannot be simulated or supervised as asked."""
+
+
+class HighDFormatError(ValueError):
+    """A HighD-format file is malformed; the message says where."""
+
+
+class ServiceError(Exception):
+    """An error with the HTTP status a client should see."""
+
+    def __init__(self, status: int, message: str, **extra):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+        self.extra = extra
+
+    def body(self) -> dict:
+        return {"error": self.message, **self.extra}
+
+
+__all__ = ["ConfigError", "HighDFormatError", "LPError", "ServiceError", "StaleCacheError"]
