@@ -9,7 +9,11 @@ environment's own action space: a highway-env ``DiscreteMetaAction`` or ``Contin
   continuous: full throttle, steering hard to one side then the other (2 s each);
 * ``idle``: IDLE, or zero acceleration and steering;
 * ``mpc``, ``bad``, ``careful``: the switched MPC drivers of Section 6.5.3 (``envs.mpc``) on the
-  overtake state (``guardian/Overtake-v0``, or ``guardian/HighwayOvertake-v0`` with continuous actions).
+  overtake state (``guardian/Overtake-v0``, or ``guardian/HighwayOvertake-v0`` with continuous actions);
+* adversaries (highway-env roads), trying to make the guardian fail: ``seek`` (drive at the nearest
+  car), ``brake_check`` (cut in front of a car behind, then brake hard), ``oscillate`` (flip the
+  lateral command every few steps at full throttle), ``hold`` (hold a random action 1-3 s), ``trap``
+  (close up on the car ahead, swerve into a neighbouring lane when a car is level or closing there).
 
 ``BASELINES`` are the four drivers of Section 6.5.3's experiment (``--driver all``).
 """
@@ -111,14 +115,162 @@ class MPCAgent:
         return np.clip(np.array(out, dtype=np.float32), -1.0, 1.0)
 
 
+# ---- adversarial agents: they try to make the guardian fail ---------------------------------------------
+class _Road:
+    """What the adversaries read: the ego, the other cars (the lead too), lanes as highway-env ids."""
+
+    def __init__(self, env):
+        self.env, self.base = env, env.unwrapped
+        self.kind = _kind(env)
+        self.overtake = hasattr(self.base, "overtake_state")
+
+    @property
+    def ego(self):
+        return self.base.vehicle
+
+    def others(self):
+        return [v for v in self.base.road.vehicles if v is not self.ego]
+
+    def n_lanes(self) -> int:
+        return int(self.base.config["lanes_count"])
+
+    def lane(self, v=None) -> int:
+        return (v or self.ego).lane_index[2]
+
+    def nearest(self, ahead_only: bool = False):
+        ego = self.ego
+        cars = [v for v in self.others() if not ahead_only or v.position[0] > ego.position[0]]
+        return min(cars, key=lambda v: float(np.linalg.norm(v.position - ego.position)), default=None)
+
+    def lateral_towards(self, lane: int) -> float:
+        """A lateral command in ``[-1, 1]`` (the env's continuous scale) moving the ego to ``lane``'s centre."""
+        ego = self.ego
+        y_target = self.base.road.network.get_lane(("0", "1", lane) if self.overtake else
+                                                   ego.lane_index[:2] + (lane,)).position(ego.position[0], 0)[1]
+        dy = float(y_target - ego.position[1])
+        if self.overtake:  # v_ey in units of y_e per second, positive to the left (smaller simulator y)
+            return float(np.clip(-dy / 1.0, -1.0, 1.0))
+        return float(np.clip(0.15 * dy - 1.5 * float(ego.heading), -1.0, 1.0))
+
+    def meta(self, name: str) -> int:
+        return _meta_names(self.env).index(name)
+
+    def lane_change_to(self, lane: int):
+        """The meta action towards ``lane`` (IDLE when there)."""
+        if lane < self.lane():
+            return self.meta("LANE_LEFT")
+        if lane > self.lane():
+            return self.meta("LANE_RIGHT")
+        return self.meta("IDLE")
+
+    def act(self, throttle: float, lane: int, meta_longitudinal: str = "FASTER"):
+        """Throttle in ``[-1, 1]`` towards ``lane``: continuous, or the meta action that moves there."""
+        if self.kind == "DiscreteMetaAction":
+            if lane != self.lane():
+                return self.lane_change_to(lane)
+            return self.meta(meta_longitudinal)
+        return _continuous(self.env, throttle, self.lateral_towards(lane))
+
+
+class SeekAgent:
+    """Drives at the nearest car: its lane, full throttle."""
+
+    def __init__(self, env, rng):
+        self.road = _Road(env)
+
+    def __call__(self, obs):
+        target = self.road.nearest()
+        lane = self.road.lane(target) if target is not None else self.road.lane()
+        return self.road.act(1.0, lane)
+
+
+class BrakeCheckAgent:
+    """Cuts in front of the nearest car behind in a neighbouring lane, then brakes hard for 2 s."""
+
+    BRAKE_SECONDS = 2.0
+
+    def __init__(self, env, rng):
+        self.road, self.rng = _Road(env), rng
+        self.brake_left, self.target = 0, None
+        self.hz = float(env.unwrapped.config["policy_frequency"])
+
+    def __call__(self, obs):
+        road = self.road
+        if self.brake_left > 0:
+            self.brake_left -= 1
+            return road.act(-1.0, road.lane(), "SLOWER")
+        if self.target is not None and road.lane() == self.target:
+            self.target, self.brake_left = None, int(self.BRAKE_SECONDS * self.hz)
+            return road.act(-1.0, road.lane(), "SLOWER")
+        if self.target is None:
+            ego, best = road.ego, None
+            for v in road.others():
+                if abs(road.lane(v) - road.lane()) == 1 and v.position[0] < ego.position[0]:
+                    if best is None or v.position[0] > best.position[0]:
+                        best = v
+            self.target = road.lane(best) if best is not None else None
+        return road.act(1.0, self.target if self.target is not None else road.lane())
+
+
+class OscillateAgent:
+    """Full throttle, the lateral command flipping side every few steps."""
+
+    def __init__(self, env, rng):
+        self.road, self.rng, self.t = _Road(env), rng, 0
+        self.period = int(rng.integers(2, 9))
+
+    def __call__(self, obs):
+        self.t += 1
+        side = 1.0 if (self.t // self.period) % 2 == 0 else -1.0
+        if self.road.kind == "DiscreteMetaAction":
+            return self.road.meta("LANE_LEFT" if side > 0 else "LANE_RIGHT")
+        return _continuous(self.road.env, 1.0, side)
+
+
+class HoldAgent:
+    """Holds a random action for a random 1-3 s, then draws another."""
+
+    def __init__(self, env, rng):
+        self.random = RandomAgent(env, rng)
+        self.rng, self.left, self.action = rng, 0, None
+        self.hz = float(env.unwrapped.config["policy_frequency"])
+
+    def __call__(self, obs):
+        if self.left <= 0:
+            self.action = self.random(obs)
+            self.left = int(self.rng.uniform(1.0, 3.0) * self.hz)
+        self.left -= 1
+        return self.action
+
+
+class TrapAgent:
+    """Closes up on the car ahead in its lane at full throttle; swerves into a neighbouring lane when a
+    car is level with it or closing from behind there (behind the lead: the trap of the overtake)."""
+
+    def __init__(self, env, rng):
+        self.road = _Road(env)
+
+    def __call__(self, obs):
+        road, ego = self.road, self.road.ego
+        for v in road.others():
+            lane = road.lane(v)
+            dx = float(v.position[0] - ego.position[0])
+            if abs(lane - road.lane()) == 1 and -25.0 < dx < 5.0:
+                return road.act(1.0, lane)
+        return road.act(1.0, road.lane())
+
+
 def _mpc(style: str):
     return lambda env, rng: MPCAgent(env, rng, STYLES[style])
 
 
 _FACTORIES = {"random": RandomAgent, "reckless": RecklessAgent, "idle": IdleAgent,
-              **{name: _mpc(name) for name in STYLES}}
+              **{name: _mpc(name) for name in STYLES},
+              "seek": SeekAgent, "brake_check": BrakeCheckAgent, "oscillate": OscillateAgent, "hold": HoldAgent,
+              "trap": TrapAgent}
 AGENTS = tuple(_FACTORIES)
 BASELINES = ("mpc", "bad", "careful", "random")
+ADVERSARIES = ("seek", "brake_check", "oscillate", "hold", "trap")  # need a highway-env road
 
 
 def make_agent(name: str, env, rng: np.random.Generator) -> Agent:
@@ -140,50 +292,7 @@ def make_agent(name: str, env, rng: np.random.Generator) -> Agent:
     """
     if name not in _FACTORIES:
         raise ValueError(f"unknown agent {name!r}; choose from {', '.join(AGENTS)}")
+    if name in ADVERSARIES and getattr(env.unwrapped, "road", None) is None:
+        raise ValueError(f"the adversaries ({', '.join(ADVERSARIES)}) drive highway-env roads "
+                         f"(guardian/HighwayOvertake-v0, the highway-v0 family), not {env.unwrapped.__class__.__name__}")
     return _FACTORIES[name](env, rng)
-
-
-def collision_fault(env, lateral_before: float | None = None, entered_responsibly=None) -> str | None:
-    """None if the ego has not crashed; else "ego" or "other" (who hit whom).
-
-    The ego is at fault if the car it hit is ahead of it (it rear-ended it), or if it was
-    moving sideways towards that car: changing lanes towards its lane (highway-env's
-    vehicles), or with ``lateral_before`` (its lateral position a step earlier) moving
-    towards it (point masses) — unless ``entered_responsibly(lane_id)`` says the ego's
-    entry into that car's lane was ρ̂-responsible when it began (ITHA: the car behind then
-    answers for its own safety).
-
-    Parameters
-    ----------
-    env : gymnasium.Env
-        A highway-env environment, right after a step.
-    lateral_before : float, optional
-        The ego's lateral position a step earlier (point-mass egos).
-    entered_responsibly : callable, optional
-        ``entered_responsibly(lane_id) -> bool``.
-
-    Returns
-    -------
-    str or None
-        ``"ego"``, ``"other"``, or None when the ego has not crashed.
-    """
-    base = env.unwrapped
-    ego = base.vehicle
-    if not ego.crashed:
-        return None
-    others = [v for v in base.road.vehicles if v is not ego and v.crashed]
-    if not others:
-        return "ego"  # crashed into an object
-    other = min(others, key=lambda o: np.linalg.norm(o.position - ego.position))
-    if other.position[0] > ego.position[0]:
-        return "ego"
-    target = getattr(ego, "target_lane_index", ego.lane_index)
-    if ego.lane_index[2] != target[2] and other.lane_index[2] in (target[2], other.target_lane_index[2]):
-        return "ego"
-    if lateral_before is not None:
-        moved = float(ego.position[1]) - lateral_before
-        if moved * (float(other.position[1]) - float(ego.position[1])) > 0:
-            if entered_responsibly is not None and entered_responsibly(other.lane_index[2]):
-                return "other"
-            return "ego"
-    return "other"

@@ -7,7 +7,11 @@ cautious intention model of ``intention.models`` — the same definitions the RC
 library and the estimator use —, and IDM/MOBIL traffic drives on the other
 lanes, some of it coming from behind in the left lane.
 
-The model drives. One step is one sampling period of (6.3) (``dt = 0.1 s``:
+The model drives, with one addition: the ego's speed is clipped at 0 after each step (a car held
+by its brake stays stopped; (6.3) has additive noise and would creep or reverse at standstill). The
+dissertation's safe set keeps ``v_ex >= 16``, where the clip never acts; with traffic the ego must be
+able to wait behind the lead, so the default parameters (``OvertakeParams.among_traffic()``) let
+``v_ex`` fall to 0. One step is one sampling period of (6.3) (``dt = 0.1 s``:
 ``simulation_frequency = policy_frequency = 10``). Each step the environment
 reads the overtake state ``x = [v_ex, y_e, h, v_Lx]`` from the vehicles (``h`` is
 the lead's position minus the ego's, centre to centre), draws the disturbance
@@ -59,7 +63,7 @@ class HighwayOvertakeEnv(AbstractEnv):
     @classmethod
     def default_config(cls) -> dict:
         config = super().default_config()
-        p = OvertakeParams()
+        p = OvertakeParams.among_traffic()
         config.update({
             "observation": {"type": "Kinematics"},
             "action": {"type": "ContinuousAction", "acceleration_range": list(p.a_ex_bounds),
@@ -206,6 +210,7 @@ class HighwayOvertakeEnv(AbstractEnv):
         u = self.vehicle.input
         w = draw_disturbance(self.params, self.config["disturbance"], x, self.np_random)
         x_next = self.model.system.step(x, u, w)
+        x_next[0] = max(x_next[0], 0.0)  # a car held by its brake stays stopped: it never reverses
         self.vehicle.stage(x_next[0], x_next[1])
         self.lead.stage(x_next[3])
         self.road.step(self.dt)

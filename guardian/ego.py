@@ -29,13 +29,19 @@ def _lanes_overlapped(lo: float, hi: float, n_lanes: int, width: float) -> froze
 
 
 class PointMassEgo:
-    """The ego of (6.3); lateral coordinates in units of ``y_e`` (lane k's centre at ``2 k y_left``)."""
+    """The ego of (6.3); lateral coordinates in units of ``y_e`` (lane k's centre at ``2 k y_left``).
 
-    def __init__(self, params: OvertakeParams, half_width: float, n_lanes: int):
+    ``stops_at_zero``: the speed is clipped at 0 after each step (a car held by its brake does not
+    reverse; ``guardian/HighwayOvertake-v0``); a next-speed interval reaching 0 then needs no lower
+    bound on the input.
+    """
+
+    def __init__(self, params: OvertakeParams, half_width: float, n_lanes: int, stops_at_zero: bool = False):
         self.p = params
         self.half_width = half_width          # the ego's half width in units of y_e
         self.lane_width = 2 * params.left_lane_y
         self.n_lanes = n_lanes                # k = 0 is the right lane (ITHA lane 1)
+        self.stops_at_zero = stops_at_zero
 
     def accel_for_speeds(self, v: float, speeds) -> list:
         p = self.p
@@ -43,6 +49,8 @@ class PointMassEgo:
         out = []
         for lo, hi in speeds:
             a_lo = (lo - keep) / p.dt - p.w_ex_bounds[0] + ROUNDING
+            if self.stops_at_zero and lo <= 0.0:
+                a_lo = p.a_ex_bounds[0]
             a_hi = (hi - keep) / p.dt - p.w_ex_bounds[1] - ROUNDING
             a_lo, a_hi = max(a_lo, p.a_ex_bounds[0]), min(a_hi, p.a_ex_bounds[1])
             if a_lo <= a_hi:
@@ -54,14 +62,42 @@ class PointMassEgo:
         ks = _lanes_overlapped(y - self.half_width, y + self.half_width, self.n_lanes, self.lane_width)
         return frozenset(k + 1 for k in ks)
 
+    def centre(self, lane: int) -> float:
+        """``y_e`` of ITHA ``lane``'s centre."""
+        return (lane - 1) * self.lane_width
+
     def next_lanes(self, y: float, v_ey: float) -> frozenset:
         """Lanes the body may overlap after one step with lateral input ``v_ey`` (any ``w_ey``)."""
         p = self.p
         lo = y + p.dt * (v_ey + p.w_ey_bounds[0]) - self.half_width
         hi = y + p.dt * (v_ey + p.w_ey_bounds[1]) + self.half_width
-        return frozenset(k + 1 for k in _lanes_overlapped(min(lo, y - self.half_width),
-                                                          max(hi, y + self.half_width),
-                                                          self.n_lanes, self.lane_width))
+        return frozenset(k + 1 for k in _lanes_overlapped(lo, hi, self.n_lanes, self.lane_width))
+
+    def lateral_partition(self, y: float) -> list:
+        """``U_e``'s lateral range cut where the lanes the body may overlap next step change.
+
+        Returns ``[(lo, hi, lanes), ...]``: for every ``v_ey`` in ``[lo, hi]`` and every ``w_ey`` the
+        body overlaps only ``lanes`` (ITHA numbers) next step. Ends move ``ROUNDING`` inwards from
+        each cut, so a rounded step stays on its side.
+        """
+        p = self.p
+        lo_u, hi_u = p.v_ey_bounds
+        cuts = set()
+        for k in range(self.n_lanes + 1):  # lane borders, and the outer road edges
+            border = (k - 0.5) * self.lane_width
+            for w in p.w_ey_bounds:
+                for side in (-self.half_width, self.half_width):
+                    v = (border - side - y) / p.dt - w
+                    if lo_u < v < hi_u:
+                        cuts.add(v)
+        ends = [lo_u, *sorted(cuts), hi_u]
+        out = []
+        for a, b in zip(ends, ends[1:]):
+            lo = a if a == lo_u else a + ROUNDING
+            hi = b if b == hi_u else b - ROUNDING
+            if lo <= hi:
+                out.append((lo, hi, self.next_lanes(y, (lo + hi) / 2)))
+        return out
 
     def lateral_keep_out(self, y: float, lane: int) -> tuple[float, float]:
         """Lateral inputs that keep the body out of ITHA ``lane`` next step, for every ``w_ey``."""
@@ -74,12 +110,21 @@ class PointMassEgo:
             lo = max(lo, ((k + 0.5) * self.lane_width + self.half_width - y) / p.dt - p.w_ey_bounds[0] + ROUNDING)
         return lo, hi
 
+    def lateral_within(self, y: float, y_lo: float, y_hi: float) -> tuple[float, float]:
+        """Lateral inputs keeping ``y+`` in ``[y_lo, y_hi]`` for every ``w_ey`` (clipped to ``U_e``)."""
+        p = self.p
+        lo = max(p.v_ey_bounds[0], (y_lo - y) / p.dt - p.w_ey_bounds[0] + ROUNDING)
+        hi = min(p.v_ey_bounds[1], (y_hi - y) / p.dt - p.w_ey_bounds[1] - ROUNDING)
+        return lo, hi
+
 
 class BicycleEgo:
     """highway-env's kinematic bicycle (``Vehicle.step``); lanes are ``lane_width`` apart, lane 0 at y = 0."""
 
     MAX_HEADING = 0.3     # [rad] the lateral guard keeps |heading| below this (so one step can stop sideways motion)
     CANDIDATES = 41       # steering angles tried when the proposed one is refused
+    RECOVERY_STEPS = 60   # steps a straightening may take (a bound; headings below MAX_HEADING need few)
+    LATERAL_MARGIN = 0.05  # [m] the body is widened by this when its path is checked against lane borders
 
     def __init__(self, dt: float, accel: float, length: float, width: float, lane_width: float, n_lanes: int,
                  max_steering: float):
@@ -115,6 +160,50 @@ class BicycleEgo:
         beta = math.atan(0.5 * math.tan(steering))
         y_next = y + self.dt * speed * math.sin(heading + beta)
         return y_next, heading + self.dt * speed * math.sin(beta) / (self.length / 2)
+
+    def swept_lanes(self, y: float, heading: float, speed: float) -> frozenset:
+        """Lanes the body (widened by ``LATERAL_MARGIN``) overlaps now or after moving on at its velocity
+        for one step: highway-env's collision test extrapolates every body by ``velocity * dt`` and
+        crashes bodies that would meet."""
+        r = self.half_extent(heading) + self.LATERAL_MARGIN
+        dy = self.dt * speed * math.sin(heading)
+        return _lanes_overlapped(min(y, y + dy) - r, max(y, y + dy) + r, self.n_lanes, self.lane_width)
+
+    def off_road_depth(self, y: float, heading: float) -> float:
+        """How far [m] the body reaches beyond the road's edges (0 on the road)."""
+        r = self.half_extent(heading)
+        return max(0.0, -self.lane_width / 2 - (y - r), y + r - (self.n_lanes - 0.5) * self.lane_width)
+
+    def straightening(self, heading: float, speed: float) -> float:
+        """The steering that brings the heading to 0 in one step, or as near as the steering limit allows."""
+        if speed <= 0 or abs(heading) >= math.pi / 2:
+            return 0.0
+        sin_beta = -heading * (self.length / 2) / (self.dt * speed)
+        beta_max = math.atan(0.5 * math.tan(self.max_steering))
+        beta = math.asin(max(-math.sin(beta_max), min(math.sin(beta_max), sin_beta)))
+        return float(np.clip(math.atan(2 * math.tan(beta)), -self.max_steering, self.max_steering))
+
+    def path(self, y: float, heading: float, speed: float, steering: float, speed_step: float = 0.0) -> list:
+        """``[(y, heading, speed), ...]`` after one step with ``steering`` and then the straightening
+        steering until the heading is (nearly) 0: the horizon the bicycle needs to undo its heading.
+        The speed changes by ``speed_step`` per step (kept at or above 0)."""
+        states = [(*self.predict(y, heading, speed, steering), max(speed + speed_step, 0.0))]
+        for _ in range(self.RECOVERY_STEPS):
+            y1, h1, v1 = states[-1]
+            if abs(h1) < 1e-6:
+                break
+            states.append((*self.predict(y1, h1, v1, self.straightening(h1, v1)), max(v1 + speed_step, 0.0)))
+        return states
+
+    def path_lanes(self, y: float, heading: float, speed: float, steering: float) -> tuple[frozenset, float]:
+        """Lanes the (swept) body overlaps along ``path`` and how far it reaches beyond the road there,
+        for the speed rising or falling as fast as it can (the sideways distance grows with speed)."""
+        lanes, depth = set(), 0.0
+        for step in (self.dt * self.accel, -self.dt * self.accel):
+            for y1, h1, v1 in self.path(y, heading, speed, steering, step):
+                lanes |= self.swept_lanes(y1, h1, v1)
+                depth = max(depth, self.off_road_depth(y1, h1))
+        return frozenset(lanes), depth
 
     def min_progress(self, speed: float, heading: float) -> float:
         """The least distance along the road one step can cover (any steering)."""

@@ -6,7 +6,8 @@ counts, for the ego, the lead (overtake scenario) and the traffic, the
 transitions the model does not cover:
 
 * overtake ego (6.3)-(6.4): the implied ``w_ex``, ``w_ey`` inside their box and
-  ``h+ = h + dt (v_L - v_ex)``;
+  ``h+ = h + dt (v_L - v_ex)`` (with ``ego_stops_at_zero``, a next speed of 0 fits when some ``w_ex``
+  of the box gives a speed at or below 0);
 * lead: the next speed explained by at least one intention model (6.5)/(6.7) with
   ``w_Delta``, ``w_Lx`` inside their box;
 * highway-env ego (bicycle): ``speed+ = speed + dt a`` and a progress along the
@@ -23,8 +24,9 @@ TOL = 1e-6
 
 class ModelMonitor:
     def __init__(self, dt: float, d_bounds: tuple, v_max: float, overtake_params=None, intention_models=None,
-                 ego_kinematics=None):
+                 ego_kinematics=None, ego_stops_at_zero: bool = False):
         self.dt, self.d_bounds, self.v_max = dt, d_bounds, v_max
+        self.ego_stops_at_zero = ego_stops_at_zero
         self.p = overtake_params
         self.models = intention_models or {}
         self.ego_kin = ego_kinematics
@@ -88,6 +90,8 @@ class ModelMonitor:
         p, dt = self.p, self.dt
         w_ex = (x1[0] - (1 - p.b_e * dt) * x[0]) / dt - u[0]
         w_ey = (x1[1] - x[1]) / dt - u[1]
+        if self.ego_stops_at_zero and x1[0] == 0.0 and w_ex >= p.w_ex_bounds[0] - TOL:
+            w_ex = min(w_ex, p.w_ex_bounds[1])  # clipped at standstill: w_ex^min already gave a speed <= 0
         ego_ok = (p.w_ex_bounds[0] - TOL <= w_ex <= p.w_ex_bounds[1] + TOL
                   and p.w_ey_bounds[0] - TOL <= w_ey <= p.w_ey_bounds[1] + TOL
                   and abs(x1[2] - x[2] - dt * (x[3] - x[0])) <= TOL)

@@ -196,10 +196,12 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
             config["traffic_from_behind"] = min(HighwayOvertakeEnv.default_config()["traffic_from_behind"], traffic)
         if library is not None:
             config["initial_region"] = library.region("bounded_velocity")
+            config["params"] = library.params
         if action == "meta":
             config["action"] = dict(ACTIONS["meta"])
-    elif action is not None:
-        config["action"] = dict(ACTIONS[action])
+    else:
+        if action is not None:
+            config["action"] = dict(ACTIONS[action])
         if traffic is not None:
             config["vehicles_count"] = traffic
     return config
@@ -208,8 +210,8 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
 def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, action: str | None = None,
                      guardian: bool = True, library=None, intention: str | None = None,
                      disturbance: str = "random", traffic: int | None = None, use_intention: bool = True,
-                     env_config: dict | None = None, guardian_config=None, progress=None, rerun_path=None,
-                     video_dir=None) -> dict:
+                     env_config: dict | None = None, guardian_config=None, safe_start: bool = False,
+                     progress=None, rerun_path=None, video_dir=None) -> dict:
     """Seeded episodes of one agent on a highway-env environment, with or without the ``Guardian``.
 
     Parameters
@@ -230,6 +232,8 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         HighwayOvertake's lead intention and disturbance mode; the number of other cars.
     env_config, guardian_config : optional
         Extra env config; the ``GuardianConfig``.
+    safe_start : bool
+        Draw each start again until it lies in the guardian's invariant sets (guarded runs only).
     progress : callable, optional
         ``progress(done, total)`` after each episode.
     rerun_path, video_dir : path, optional
@@ -238,12 +242,8 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     Returns
     -------
     dict
-        ``episodes, steps, collisions, ego_at_fault_collisions, override_steps, refused_lane_changes,
-        clipped_sim_steps, lane_changes, distance_mean, model_violation_steps`` (steps where the ego's or
-        the lead's observed transition left the model), ``traffic_model_violation_steps``,
-        ``conflict_steps, failsafe_steps, crashes``; on HighwayOvertake also ``safety_violations``
-        (exits from the safe set (6.8)), ``wrong_identifications``, ``mean_steps_to_identify_intention``,
-        ``identified_fraction``.
+        The counts of ``HighwayTally.result`` (documented there, with the fault judge's rules in
+        ``guardian.judge``).
     """
     import gymnasium as gym
 
@@ -255,7 +255,12 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config)
     env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
     if guardian:
-        env = Guardian(env, library, guardian_config or GuardianConfig(use_intention=use_intention))
+        gcfg = guardian_config or GuardianConfig(use_intention=use_intention)
+        if safe_start:
+            import dataclasses
+
+            gcfg = dataclasses.replace(gcfg, resample_unsafe_start=True)
+        env = Guardian(env, library, gcfg)
     if video_dir:
         env = gym.wrappers.RecordVideo(env, str(video_dir), episode_trigger=lambda e: True,
                                        name_prefix=env_id.replace("/", "-"), disable_logger=True)
@@ -263,85 +268,131 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     if rerun_path is not None:
         from guardian.rerun_log import GuardianRecorder
         recorder = GuardianRecorder(rerun_path)
-    tally = HighwayTally(env, overtake, guardian, recorder)
+    tally = HighwayTally(env, overtake, guardian, recorder, library)
     run_episodes(env, agent, episodes, seed, [tally], progress)
     return tally.result(episodes)
 
 
-class HighwayTally(Observer):
-    """Counts of a highway-env rollout: collisions and who was at fault, overrides, model violations."""
+COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
+          "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
+          "override_steps", "refused_lane_changes", "clipped_sim_steps", "lane_changes",
+          "model_violation_steps", "traffic_model_violation_steps", "follower_dropped_steps", "conflict_steps",
+          "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments")
 
-    def __init__(self, env, overtake: bool, guardian: bool, recorder=None):
+
+class HighwayTally(Observer):
+    """Counts of a highway-env rollout, each by a written rule (see ``result``)."""
+
+    def __init__(self, env, overtake: bool, guardian: bool, recorder=None, library=None):
         self.overtake, self.guardian, self.recorder = overtake, guardian, recorder
-        self.estimator = self.monitor = None
+        self.library, self._aside = library, None
+        self.estimator = None
         if overtake:
             self._watch_the_lead(env)
-        self.totals = {"episodes": 0, "steps": 0, "collisions": 0, "ego_at_fault_collisions": 0,
-                       "override_steps": 0, "refused_lane_changes": 0, "clipped_sim_steps": 0, "lane_changes": 0,
-                       "distance_mean": 0.0, "model_violation_steps": 0, "traffic_model_violation_steps": 0,
-                       "conflict_steps": 0, "failsafe_steps": 0, "crashes": []}
+        self.totals = {k: 0 for k in COUNTS}
+        self.totals["crashes"] = []
         if overtake:
-            self.totals.update({"safety_violations": 0, "wrong_identifications": 0})
+            self.totals["wrong_identifications"] = 0
         self.identify, self.distance, self.monitor_worst = [], 0.0, {}
 
     def _watch_the_lead(self, env) -> None:
         from guardian.monitor import ModelMonitor
-        from guardian.wrapper import GuardianConfig
         from intention.estimator import IntentionEstimator
         from intention.models import intention_models
 
         models = intention_models(env.unwrapped.params)
         candidates = {n: models[n] for n in ("aggressive", "cautious")}
         self.estimator = IntentionEstimator(candidates, horizon=10)
+        self.monitor = None
         if not self.guardian:  # the guardian's own monitor counts when it is there
+            from guardian.config import GuardianConfig
+
             g = GuardianConfig()
             self.monitor = ModelMonitor(env.unwrapped.params.dt, (-g.traffic_accel, g.traffic_accel), g.v_max,
-                                        env.unwrapped.params, candidates)
+                                        env.unwrapped.params, candidates, ego_stops_at_zero=True)
 
     def start_episode(self, env, episode, obs) -> None:
-        from guardian.wrapper import EntryLedger
+        from guardian.judge import FaultJudge
+        from guardian.sensing import read_road
 
         base = env.unwrapped
         if self.estimator is not None:
             self.estimator.reset()
+        if self.overtake and self.monitor is not None:
+            self.monitor.reset()
         if self.recorder is not None:
             self.recorder.start_episode(env, episode)
         self.episode, self.t = episode, 0
         self.x0 = float(base.vehicle.position[0])
-        self.ledger = EntryLedger(base) if self.overtake else None
+        self.road = read_road(base)
+        self.judge = FaultJudge(self.road.lane_width, self.road.n_lanes, 1.0 / base.config["policy_frequency"])
+        self.judge.start(base)
+        self.inside = self._start_inside(env, base)
+        self.totals["starts_outside"] += int(not self.inside)
+        self.checker = None if self.overtake else _SelfSafetyCheck(base, self.road)
+
+    def _start_inside(self, env, base) -> bool:
+        """The guardian's own test; without it, the same sets' test on a guardian built aside."""
+        if self.guardian:
+            return bool(_guardian_of(env).start_inside())
+        if self.overtake:
+            if self._aside is None:
+                from guardian.pointmass import PointMassGuardian
+                from guardian.config import GuardianConfig
+
+                self._aside = PointMassGuardian(self.library, self.road.n_lanes,
+                                                base.vehicle.WIDTH / 2 / base.config["lateral_scale"],
+                                                int(base.config["traffic_count"]) > 0, GuardianConfig())
+            from guardian.sensing import road_scene
+
+            return bool(self._aside.inside(base.overtake_state(), road_scene(base, self.road)))
+        return _SelfSafetyCheck(base, self.road).inside(base)
 
     def before_step(self, env, obs, action) -> None:
         base = env.unwrapped
         self.lane_before = base.vehicle.lane_index[2]
-        self.y_before = float(base.vehicle.position[1])
-        if self.ledger is not None:
-            self.ledger.before_step(base)
 
     def after_step(self, env, obs, action, info) -> None:
-        from envs.agents import collision_fault
-
         base, totals = env.unwrapped, self.totals
         self.t += 1
-        if self.ledger is not None:
-            self.ledger.after_step(base)
-        _count_step(totals, info.get("guardian"), base, self.lane_before)
-        if self.estimator is not None:
+        g = info.get("guardian")
+        _count_step(totals, g, base, self.lane_before)
+        entries_before = len(self.judge.ego_entries)
+        crash = self.judge.observe(base)
+        if g is not None:
+            held = set(g["lanes"]) | set(g["entered"])
+            for _, lane in self.judge.ego_entries[entries_before:]:
+                totals["unchecked_entries"] += int(self.road.itha_lane(lane) not in held)
+        totals["reversing_steps"] += int(base.vehicle.speed < -1e-9)
+        if self.overtake:
+            from intention.models import unclip_standstill
+
             tr = base.last_transition
-            self.estimator.update(tr["state"], tr["input"], tr["next_state"])
-        if self.monitor is not None:
-            totals["model_violation_steps"] += int(sum(self.monitor.overtake_transition(
-                tr["state"], tr["input"], tr["next_state"])) > 0)
+            self.estimator.update(tr["state"], tr["input"], unclip_standstill(base.params, tr["state"], tr["input"],
+                                                                              tr["next_state"]))
+            if self.monitor is not None:
+                totals["model_violation_steps"] += int(sum(self.monitor.overtake_transition(
+                    tr["state"], tr["input"], tr["next_state"])) > 0)
             totals["safety_violations"] += int(info["unsafe"])
+        else:
+            totals["safety_violations"] += int(not self.checker.inside(base))
         if self.recorder is not None:
-            self.recorder.log(env, self.episode, self.t, info.get("guardian"))
-        fault = collision_fault(env, self.y_before if self.overtake else None,
-                                self.ledger.entered_responsibly if self.ledger is not None else None)
-        if fault:
-            g = info.get("guardian") or {}
-            totals["collisions"] += 1
-            totals["ego_at_fault_collisions"] += int(fault == "ego")
-            totals["crashes"].append({"episode": self.episode, "step": self.t, "fault": fault,
-                                      "conflict": bool(g.get("conflict_steps")), "reasons": g.get("reasons", [])})
+            self.recorder.log(env, self.episode, self.t, g)
+        if crash is not None:
+            self._count_crash(crash, g or {})
+
+    def _count_crash(self, crash, g: dict) -> None:
+        totals = self.totals
+        totals["collisions"] += 1
+        at_fault = crash.fault == "ego"
+        if self.inside:
+            totals["ego_at_fault_collisions"] += int(at_fault)
+        else:
+            totals["collisions_after_outside_starts"] += 1
+            totals["ego_at_fault_after_outside_starts"] += int(at_fault)
+        totals["crashes"].append({"episode": self.episode, "step": self.t, "fault": crash.fault, "rule": crash.rule,
+                                  "partner": crash.partner, "start_inside": self.inside,
+                                  "level": g.get("level"), "reasons": g.get("reasons", [])})
 
     def end_episode(self, env, episode) -> None:
         base = env.unwrapped
@@ -358,6 +409,27 @@ class HighwayTally(Observer):
             self.recorder.close()
 
     def result(self, episodes: int) -> dict:
+        """The counts, each by its rule.
+
+        * ``collisions``: episodes whose ego crashed (highway-env's crash flag, which also fires on
+          its one-step extrapolation of the bodies). ``ego_at_fault_collisions``: of those starting
+          inside the guardian's invariant sets, the ones ``guardian.judge.FaultJudge`` gives to the
+          ego; crashes after a start outside are counted apart (``collisions_after_outside_starts``,
+          ``ego_at_fault_after_outside_starts``). ``starts_outside``: episodes whose start lay
+          outside the sets (with the guardian, its own test; without, self-safety towards the cars
+          ahead on highway-v0).
+        * ``safety_violations``: steps ending outside the safe set (6.8) (HighwayOvertake) or with no
+          self-safe input left (highway-v0), with or without the guardian.
+        * ``unchecked_entries``: lanes the ego's body began to overlap in a step whose record lists the
+          lane neither among the lanes the guardian held the ego in nor among the entries it checked and
+          found responsible.
+        * ``reversing_steps``: steps ending with a negative ego speed. ``unsupervised_steps``:
+          simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
+          guardian found the ego reset or replaced behind its back.
+        * ``override_steps``, ``clipped_sim_steps``, ``refused_lane_changes``, ``follower_dropped_steps``,
+          ``conflict_steps``, ``failsafe_steps``: from ``info["guardian"]``; ``lane_changes``: policy
+          steps whose lane index changed; ``distance_mean``: mean distance along the road per episode.
+        """
         totals = self.totals
         totals["episodes"] = episodes
         totals["distance_mean"] = self.distance / episodes
@@ -365,6 +437,8 @@ class HighwayTally(Observer):
             totals["traffic_model_violation_steps"] = None
             if not self.overtake:
                 totals["model_violation_steps"] = None
+            for k in ("unchecked_entries", "unsupervised_steps", "reattachments"):
+                totals[k] = None
         if self.guardian:
             totals["traffic_model_worst"] = {k: round(v, 6) for k, v in self.monitor_worst.items()}
         if self.overtake:
@@ -372,6 +446,32 @@ class HighwayTally(Observer):
             totals["mean_steps_to_identify_intention"] = float(np.mean(ident)) if ident else None
             totals["identified_fraction"] = len(ident) / episodes
         return totals
+
+
+class _SelfSafetyCheck:
+    """Whether the highway-v0 ego has a self-safe input (7.4) towards the cars ahead in its lanes."""
+
+    def __init__(self, base, road):
+        from guardian.config import GuardianConfig
+        from guardian.traffic import TrafficSupervisor
+        from itha.car_following import CarFollowingParams
+
+        c = GuardianConfig()
+        self.dt = 1.0 / base.config["simulation_frequency"]
+        self.road, self.accel = road, c.traffic_accel
+        self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
+                                                            u_min=-c.traffic_accel, u_max=c.traffic_accel,
+                                                            d_min=-c.traffic_accel, d_max=c.traffic_accel))
+
+    def inside(self, base) -> bool:
+        from guardian.judge import body_lanes
+        from guardian.sensing import road_scene
+
+        ego = base.vehicle
+        lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
+        speeds, _ = self.traffic.self_safe_speeds(road_scene(base, self.road, {self.road.itha_lane(i) for i in lanes}))
+        v, reach = float(ego.speed), self.accel * self.dt
+        return any(max(lo, v - reach) <= min(hi, v + reach) for lo, hi in speeds)
 
 
 def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:
@@ -385,8 +485,9 @@ def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:
     mv = g["model_violations"]
     totals["model_violation_steps"] += int(mv["ego"] + mv["lead"] > 0)
     totals["traffic_model_violation_steps"] += int(mv["traffic"] > 0)
-    totals["conflict_steps"] += g["conflict_steps"]
-    totals["failsafe_steps"] += g["failsafe_steps"]
+    for k in ("follower_dropped_steps", "conflict_steps", "failsafe_steps", "unsupervised_steps"):
+        totals[k] += g[k]
+    totals["reattachments"] += int(g["reattached"])
 
 
 def _guardian_of(env):

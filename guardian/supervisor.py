@@ -22,6 +22,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from intention.estimator import IntentionEstimator
+from intention.models import unclip_standstill
 from rcis.validate import finite_vector
 
 FAILSAFE_INPUT = (-3.0, 0.0)  # (a_ex, v_ey): brake fully, hold the lateral position
@@ -76,9 +77,11 @@ class IntentionAwareGuardian:
         Which input the override changes first (0: acceleration, 1: lateral velocity).
     """
 
-    def __init__(self, library, use_intention: bool = True, horizon: int = 10, priority=(0, 1)):
+    def __init__(self, library, use_intention: bool = True, horizon: int = 10, priority=(0, 1),
+                 ego_stops_at_zero: bool = False):
         self.library = library
         self.use_intention = use_intention
+        self.ego_stops_at_zero = ego_stops_at_zero  # the simulator clips v_ex at 0 (intention.models.unclip_standstill)
         self.priority = tuple(priority)
         candidates = {n: library.models[n] for n in ("aggressive", "cautious")}
         self.estimator = IntentionEstimator(candidates, horizon=horizon)
@@ -103,7 +106,8 @@ class IntentionAwareGuardian:
         x = finite_vector(x, 4, "state")
         self.library.models[AGNOSTIC].system.piece_index(x)  # raises before any state changes
         if self._last is not None:
-            self.estimator.update(self._last[0], self._last[1], x)
+            x_seen = unclip_standstill(self.library.params, *self._last, x) if self.ego_stops_at_zero else x
+            self.estimator.update(self._last[0], self._last[1], x_seen)
         name = self.active_set
         adm = self.library.admissible(name)
         return LeadView(x, name, adm, adm.at(x), bool(self.library.region(name).contains(x)))

@@ -20,52 +20,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from guardian.scene import Car, Scene  # noqa: F401 (the scene the decisions read)
 from itha.car_following import CarFollowingParams, MaximalSet
 from itha.responsibility import EgoSupervisor
 from itha.road import LEFT, RIGHT, HighwayParams
 from rcis.intervals import intersect_intervals
-
-
-@dataclass(frozen=True)
-class Car:
-    front: float        # front-bumper position along the direction of travel [m]
-    speed: float        # [m/s]
-    lanes: frozenset    # ITHA lane numbers the car occupies (1 = rightmost)
-    length: float       # [m]
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class Scene:
-    """The road at one instant; each lane's nearest car ahead of and behind the ego, computed once."""
-
-    ego: Car
-    others: tuple
-    n_lanes: int
-
-    def leader(self, lane: int):
-        """The nearest car in ``lane`` whose front is at or ahead of the ego's (None if there is none)."""
-        return self._neighbours(lane)[0]
-
-    def follower(self, lane: int):
-        """The nearest car in ``lane`` whose front is behind the ego's (None if there is none)."""
-        return self._neighbours(lane)[1]
-
-    def _neighbours(self, lane: int):
-        cache = self.__dict__.setdefault("_lane_neighbours", {})
-        if lane not in cache:
-            ahead = behind = None
-            front = self.ego.front
-            for c in self.others:  # the first of equals wins, as min/max over the list did
-                if lane not in c.lanes:
-                    continue
-                if c.front >= front:
-                    if ahead is None or c.front < ahead.front:
-                        ahead = c
-                elif behind is None or c.front > behind.front:
-                    behind = c
-            cache[lane] = (ahead, behind)
-        return cache[lane]
 
 
 @dataclass(frozen=True)

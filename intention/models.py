@@ -246,3 +246,22 @@ def left_lane(p: OvertakeParams = OvertakeParams()):
 
     X = state_domain(p)
     return Region([X.intersect(Polyhedron([-np.eye(4)[Y]], [-p.left_lane_y])).minimal()], 4)
+
+
+def unclip_standstill(p: OvertakeParams, x, u, x_next) -> np.ndarray:
+    """``x_next`` with a speed clipped at standstill replaced by the speed (6.3) gives nearest to it.
+
+    ``guardian/HighwayOvertake-v0`` stops the ego at ``v_ex = 0`` (a car held by its brake does not
+    reverse), which (6.3) does not model; the intention estimator judges transitions by (6.3). The
+    ego's rows say nothing about the lead's intention, so a clipped step is handed over with the
+    model's speed for the ego noise nearest to it: the lead's rows are unchanged.
+    """
+    x, u, x_next = (np.asarray(a, dtype=float) for a in (x, u, x_next))
+    if x_next[V] != 0.0:
+        return x_next
+    keep = (1 - p.b_e * p.dt) * x[V] + p.dt * u[0]
+    w = min(max(-keep / p.dt, p.w_ex_bounds[0]), p.w_ex_bounds[1])
+    out = x_next.copy()
+    out[V] = keep + p.dt * w
+    return out
+

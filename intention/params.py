@@ -36,6 +36,12 @@ class OvertakeParams:
     k_c: float = 0.01
     left_lane_y: float = 0.9            # y_e >= this is the left lane (C_left, Prop. 20)
 
+    @classmethod
+    def among_traffic(cls, **changes) -> "OvertakeParams":
+        """Table 6.1 with the ego's speed floor at 0: the ego may wait behind the lead for as long as
+        traffic takes the left lane (the dissertation's ``v_ex >= 16`` assumes a free left lane)."""
+        return cls(**{"v_ex_bounds": (0.0, cls.v_ex_bounds[1]), **changes})
+
     def as_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
 

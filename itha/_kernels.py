@@ -75,6 +75,39 @@ def lowest_safe_lead_speed(ae, aL, dt, v, h, threshold, top, iterations):
     return _bisect(ae, aL, dt, v, h, threshold, top, iterations, True)[1]
 
 
+@njit(cache=True)
+def floor_drag(rho_e, beta_e, rho_L, beta_L, dt, v, h, vL):
+    """``min_t Φ_t`` when each car's speed under full braking follows ``s+ = max(rho s - beta, 0)``
+    (linear drag ``rho = 1 - b dt`` and a constant braking ``beta = -dt u``): the braking sequences are
+    stepped until the ego stands (afterwards the headway cannot shrink)."""
+    best = h
+    phi = h
+    while v > 0.0:
+        phi += dt * (vL - v)
+        if phi < best:
+            best = phi
+        v = max(rho_e * v - beta_e, 0.0)
+        vL = max(rho_L * vL - beta_L, 0.0)
+    return best
+
+
+@njit(cache=True)
+def _bisect_drag(rho_e, beta_e, rho_L, beta_L, dt, a, b, threshold, top, iterations, over_lead):
+    """``_bisect`` for ``floor_drag``."""
+    lo, hi = 0.0, top
+    for _ in range(iterations):
+        mid = (lo + hi) / 2
+        if over_lead:
+            safe = floor_drag(rho_e, beta_e, rho_L, beta_L, dt, a, b, mid) >= threshold
+        else:
+            safe = floor_drag(rho_e, beta_e, rho_L, beta_L, dt, mid, a, b) >= threshold
+        if safe != over_lead:
+            lo = mid
+        else:
+            hi = mid
+    return lo, hi
+
+
 def flat_floats(*arrays):
     """The arrays broadcast together, as contiguous 1-D float64 arrays for the loops below, and
     the shape to give their answers back in."""

@@ -65,6 +65,8 @@ class CarFollowingParams:
     u_max: float = 10.0
     d_min: float = -10.0
     d_max: float = 10.0
+    drag: float = 0.0        # [1/s] ego: v+ = (1 - drag dt) v + dt u (the overtake ego of (6.3): b_e)
+    lead_drag: float = 0.0   # [1/s] lead: v_L+ = max((1 - lead_drag dt) v_L + dt d, 0)
 
     def __post_init__(self):
         for name in ("dt", "v_max", "h_min"):
@@ -74,6 +76,22 @@ class CarFollowingParams:
             raise ValueError(f"need u_min < 0 < u_max (the ego must be able to brake), got [{self.u_min}, {self.u_max}]")
         if not self.d_min < 0 <= self.d_max:
             raise ValueError(f"need d_min < 0 <= d_max, got [{self.d_min}, {self.d_max}]")
+        for name in ("drag", "lead_drag"):
+            if not 0 <= getattr(self, name) * self.dt < 1:
+                raise ValueError(f"CarFollowingParams.{name} must be in [0, 1/dt), got {getattr(self, name)}")
+
+    @property
+    def has_drag(self) -> bool:
+        return self.drag > 0 or self.lead_drag > 0
+
+    @property
+    def keep(self) -> float:
+        """The share of the ego's speed kept over a step without input, ``1 - drag dt``."""
+        return 1.0 - self.drag * self.dt
+
+    def next_speed(self, v, u):
+        """The ego's speed after a step with input ``u`` (before the standstill clip)."""
+        return self.keep * v + self.dt * u
 
     @property
     def ego_step(self) -> float:
@@ -87,7 +105,9 @@ class CarFollowingParams:
 
     def worst_lead_speed(self, vL):
         """The lead's slowest next speed (full braking, stopped at 0)."""
-        return np.maximum(np.asarray(vL, float) + self.dt * self.d_min, 0.0)
+        keep = 1.0 - self.lead_drag * self.dt
+        vL = np.asarray(vL, float)
+        return np.maximum((keep * vL if self.lead_drag else vL) + self.dt * self.d_min, 0.0)
 
 
 def _braking_distance(v, a, t):
@@ -119,10 +139,27 @@ def headway_floor(p: CarFollowingParams, v, h, vL):
     same order, equal bit for bit, tested); anything else the array expression below.
     """
     v, h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL))
+    if p.has_drag:
+        out = np.array([_floor(p, a, b, c) for a, b, c in zip(v.ravel(), h.ravel(), vL.ravel())])
+        return out.reshape(v.shape)
     if v.ndim == 1 and np.isfinite(v).all() and np.isfinite(vL).all():
         return _kernels.floor_many(p.ego_step, p.lead_step, p.dt, np.ascontiguousarray(v),
                                    np.ascontiguousarray(h), np.ascontiguousarray(vL))
     return _headway_floor_arrays(p, v, h, vL)
+
+
+def _floor(p: CarFollowingParams, v: float, h: float, vL: float) -> float:
+    """``min_t Φ_t`` of one state, compiled: the closed form, or the braking sequences with drag."""
+    if p.has_drag:
+        return _kernels.floor_drag(p.keep, p.ego_step, 1.0 - p.lead_drag * p.dt, p.lead_step, p.dt, v, h, vL)
+    return _kernels.floor(p.ego_step, p.lead_step, p.dt, v, h, vL)
+
+
+def _bisect_speed(p: CarFollowingParams, a: float, b: float, threshold: float, over_lead: bool) -> tuple:
+    if p.has_drag:
+        return _kernels._bisect_drag(p.keep, p.ego_step, 1.0 - p.lead_drag * p.dt, p.lead_step, p.dt, a, b,
+                                     threshold, p.v_max, SPEED_BISECTIONS, over_lead)
+    return _kernels._bisect(p.ego_step, p.lead_step, p.dt, a, b, threshold, p.v_max, SPEED_BISECTIONS, over_lead)
 
 
 def unsafe_inputs(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
@@ -132,6 +169,8 @@ def unsafe_inputs(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
 
     Compiled (``_kernels.unsafe_inputs``); its referee in the tests is the array expression.
     """
+    if p.has_drag:
+        raise ValueError("unsafe_inputs checks recorded data against (7.3) without drag")
     shape, flat = _kernels.flat_floats(v, h, vL, u)
     return _kernels.unsafe_inputs(p.ego_step, p.lead_step, p.dt, p.u_min, p.u_max, p.d_min, p.v_max, p.h_min,
                                   *flat).reshape(shape)
@@ -198,7 +237,7 @@ class MaximalSet:
                 return np.zeros(1, dtype=bool)
             if h == math.inf:
                 return np.ones(1, dtype=bool)
-            ok = 0 <= vL <= p.v_max and _kernels.floor(p.ego_step, p.lead_step, p.dt, v, h, vL) >= p.h_min
+            ok = 0 <= vL <= p.v_max and _floor(p, v, h, vL) >= p.h_min
             return np.array([ok])
         v, h, vL = X[:, 0], X[:, 1], X[:, 2]
         ok = (v >= 0) & (v <= p.v_max)
@@ -216,14 +255,13 @@ class MaximalSet:
             return math.inf
 
         def safe(s):  # monotone in s; the compiled floor, equal to _floor_scalar bit for bit
-            return _kernels.floor(p.ego_step, p.lead_step, p.dt, float(v), float(h), s) >= p.h_min + INNER
+            return _floor(p, float(v), float(h), s) >= p.h_min + INNER
 
         if safe(0.0):
             return 0.0
         if not safe(p.v_max):
             return math.inf
-        return _kernels.lowest_safe_lead_speed(p.ego_step, p.lead_step, p.dt, float(v), float(h), p.h_min + INNER,
-                                               p.v_max, SPEED_BISECTIONS)
+        return _bisect_speed(p, float(v), float(h), p.h_min + INNER, True)[1]
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         """Ego speeds v with ``(v, h, vL)`` in C."""
@@ -234,14 +272,13 @@ class MaximalSet:
             return []
 
         def safe(s):  # monotone in s; the compiled floor, equal to _floor_scalar bit for bit
-            return _kernels.floor(p.ego_step, p.lead_step, p.dt, s, float(h), float(vL)) >= p.h_min + INNER
+            return _floor(p, s, float(h), float(vL)) >= p.h_min + INNER
 
         if not safe(0.0):
             return []
         if safe(p.v_max):
             return [(0.0, p.v_max)]
-        return [(0.0, _kernels.highest_safe_speed(p.ego_step, p.lead_step, p.dt, float(h), float(vL),
-                                                  p.h_min + INNER, p.v_max, SPEED_BISECTIONS))]
+        return [(0.0, _bisect_speed(p, float(h), float(vL), p.h_min + INNER, False)[0])]
 
     def lead_speed_intervals(self, v: float, h: float) -> list[tuple[float, float]]:
         """Lead speeds v_L with ``(v, h, v_L)`` in C."""
@@ -300,12 +337,13 @@ class PolyhedralSet:
 def speeds_to_inputs(p: CarFollowingParams, v: float, speeds) -> list[tuple[float, float]]:
     """Inputs u in U whose next speed ``v + dt u`` lies in one of the speed intervals."""
     out = []
+    kv = p.keep * v
     for lo, hi in speeds:
         lo, hi = max(lo, 0.0), min(hi, p.v_max)
-        a, b = max(p.u_min, (lo - v) / p.dt), min(p.u_max, (hi - v) / p.dt)
-        while v + p.dt * a < lo:  # rounding: the next speed itself must be in the interval
+        a, b = max(p.u_min, (lo - kv) / p.dt), min(p.u_max, (hi - kv) / p.dt)
+        while kv + p.dt * a < lo:  # rounding: the next speed itself must be in the interval
             a = math.nextafter(a, math.inf)
-        while v + p.dt * b > hi:
+        while kv + p.dt * b > hi:
             b = math.nextafter(b, -math.inf)
         if a <= b:
             out.append((a, b))
@@ -357,6 +395,8 @@ def safe_set(p: CarFollowingParams, tighten: float = 0.0) -> Polyhedron:
 
 
 def compute_polyhedral(p: CarFollowingParams, max_iterations: int = 400, progress=None) -> PolyhedralSet:
+    if p.has_drag:
+        raise ValueError("the polyhedral car-following set is computed for (7.3) without drag; use MaximalSet")
     res = outside_in(worst_case_system(p), Region([safe_set(p, H_TIGHTEN)]), max_iterations=max_iterations,
                      progress=progress, margin=0.0)
     if not res.converged:

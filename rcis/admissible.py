@@ -226,6 +226,30 @@ class AdmissibleQuery:
         return AdmissibleQuery(self.owner, np.ascontiguousarray(np.vstack(G)), np.concatenate(r),
                                np.concatenate(starts).astype(np.int64))
 
+    @classmethod
+    def of_boxes(cls, owner: AdmissibleInputs, boxes) -> "AdmissibleQuery":
+        """``∪_k B_k ∩ U`` as a query: boxes ``((lo_0, hi_0), (lo_1, hi_1))`` of the input plane."""
+        G, r, starts = [], [], [0]
+        for (lo0, hi0), (lo1, hi1) in boxes:
+            G.extend([(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)])
+            r.extend([hi0, -lo0, hi1, -lo1])
+            starts.append(starts[-1] + 4)
+        return cls(owner, np.array(G, dtype=float).reshape(-1, 2), np.array(r, dtype=float),
+                   np.asarray(starts, dtype=np.int64))
+
+    def union(self, *others: "AdmissibleQuery") -> "AdmissibleQuery":
+        """The union of this query's polygons and the others' (same owner, so the same ``U``)."""
+        parts = [self, *others]
+        if any(q.owner is not self.owner for q in others):
+            raise ValueError("AdmissibleQuery.union: the queries belong to different input sets")
+        G = np.vstack([q.G for q in parts]) if parts else np.zeros((0, 2))
+        r = np.concatenate([q.r for q in parts])
+        starts, offset = [np.zeros(1, dtype=np.int64)], 0
+        for q in parts:
+            starts.append(q.starts[1:] + offset)
+            offset += len(q.G)
+        return AdmissibleQuery(self.owner, np.ascontiguousarray(G), r, np.concatenate(starts).astype(np.int64))
+
     def ranges(self, axis: int, value: float) -> list[tuple[float, float]]:
         """Admissible ranges of input ``axis`` with the other fixed to ``value`` (Fig. 6.5)."""
         iv = _kernels.line_intervals(self.G, self.r, self.starts, axis, float(value),

@@ -12,3 +12,14 @@ def library(cache_dir):
     from intention.library import build_library
 
     return build_library(cache_dir=cache_dir, quiet=True, workers=2)
+
+
+@pytest.fixture(scope="session")
+def traffic_library(cache_dir):
+    """The overtake library among traffic (the ego may wait behind the lead: v_ex >= 0), with three
+    inside-out iterations for the intention sets (every iterate is an RCIS; the tests need no more)."""
+    from intention.library import LibrarySettings, build_library
+    from intention.params import OvertakeParams
+
+    return build_library(params=OvertakeParams.among_traffic(), settings=LibrarySettings(intention_max_iterations=3),
+                         cache_dir=cache_dir, quiet=True, workers=2)

@@ -9,7 +9,7 @@ COMMANDS = {  # every command and its options, as the README documents them
     ("rcis", "export"): {"--out", "--json"},
     ("rcis", "plot"): {"--out"},
     ("rollout",): {"--scenario", "--env", "--agent", "--action", "--intention", "--driver", "--episodes", "--seed",
-                   "--disturbance", "--traffic", "--no-guardian", "--no-intention", "--conflict", "--rerun",
+                   "--disturbance", "--traffic", "--no-guardian", "--no-intention", "--safe-start", "--rerun",
                    "--video", "--json"},
     ("itha", "highway"): {"--runs", "--steps", "--seed", "--overapprox", "--set", "--rerun", "--json"},
     ("itha", "processors"): {"--runs", "--steps", "--seed", "--keep-jobs", "--json"},

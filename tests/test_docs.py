@@ -26,7 +26,7 @@ ENTRY_POINTS = [
     ("itha.car_following", "make_set", True), ("itha.car_following", "load_or_build", True),
     ("itha.highway_experiment", "highway_experiment", True), ("itha.processors", "processors_experiment", True),
     ("itha.idm", "idm_acceleration", True),
-    ("envs.agents", "make_agent", True), ("envs.agents", "collision_fault", True),
+    ("envs.agents", "make_agent", True),
     ("envs.overtake", "OvertakeEnv", False), ("envs.wrappers", "OvertakeGuardianWrapper", False),
 ]
 

@@ -5,7 +5,7 @@ import highway_env  # noqa: F401
 import numpy as np
 import pytest
 
-from envs.highway_overtake import ConfigError
+from guardian.errors import ConfigError
 from guardian.rollout import highway_rollouts
 from guardian.wrapper import Guardian
 
@@ -79,7 +79,7 @@ def test_continuous_steering_into_an_occupied_lane_is_refused():
     _, _, _, _, info = env.step(np.array([0.0, -1.0]))
     g = info["guardian"]
     assert g["refused_lane_change"] and any("refused" in r for r in g["reasons"])
-    half = env.ego_kin.half_extent(float(ego.heading))
+    half = env.guard.kin.half_extent(float(ego.heading))
     assert ego.position[1] - half >= (lane - 0.5) * 4.0 - 1e-9  # never crossed into the left lane
     env.close()
 
@@ -105,3 +105,67 @@ def test_a_non_highway_env_is_refused():
 
     with pytest.raises(ConfigError, match="not a highway-env environment"):
         Guardian(gym.make("guardian/Overtake-v0"))
+
+
+# ---- supervision is never lost silently -------------------------------------------------------------
+def _supervised(info, base):
+    g = info["guardian"]
+    return g["unsupervised_steps"] == 0 and g["sim_steps"] == base.config["simulation_frequency"] // \
+        base.config["policy_frequency"]
+
+
+def test_an_inner_autoreset_is_followed_and_said():
+    env = Guardian(gym.wrappers.Autoreset(gym.make("highway-fast-v0", config={"duration": 2})))
+    env.reset(seed=0)
+    base = env.unwrapped
+    saw_reset = False
+    for _ in range(8):
+        _, _, term, trunc, info = env.step(1)
+        g = info["guardian"]
+        if g["sim_steps"] == 0:  # the inner wrapper reset instead of stepping
+            assert g["reattached"] and any("reset inside the step" in r for r in g["reasons"])
+            saw_reset = True
+        else:
+            assert _supervised(info, base)
+    assert saw_reset
+    assert base.vehicle.__dict__["act"].guardian is env  # the new ego is supervised
+
+
+def test_an_env_reset_before_wrapping_or_behind_the_guardians_back_is_attached():
+    inner = gym.make("highway-fast-v0")
+    inner.reset(seed=0)
+    env = Guardian(inner)
+    _, _, _, _, info = env.step(1)
+    assert info["guardian"]["reattached"] and _supervised(info, env.unwrapped)
+    env.unwrapped.reset(seed=1)  # a new ego, the guardian not told
+    _, _, _, _, info = env.step(1)
+    g = info["guardian"]
+    assert g["reattached"] and any("behind the guardian's back" in r for r in g["reasons"])
+    assert _supervised(info, env.unwrapped)
+
+
+def test_configure_after_wrapping_takes_effect_at_reset():
+    env = Guardian(gym.make("highway-fast-v0"))
+    env.reset(seed=0)
+    env.unwrapped.configure({"lanes_count": 6})
+    env.reset(seed=0)
+    assert env.guard.kin.n_lanes == 6 and env.road.n_lanes == 6
+    _, _, _, _, info = env.step(1)
+    assert _supervised(info, env.unwrapped) and not info["guardian"]["reattached"]
+
+
+def test_a_start_inside_is_reported_and_unsafe_starts_can_be_drawn_again():
+    dense = {"vehicles_density": 2.5, "lanes_count": 1, "policy_frequency": 1}
+    env = Guardian(gym.make("highway-fast-v0", config=dense))
+    starts = [env.reset(seed=s)[1]["guardian"]["start_inside"] for s in range(15)]
+    assert not all(starts)
+    for s in range(5):
+        _, info = env.reset(seed=s, options={"safe_start": True})
+        assert info["guardian"]["start_inside"]
+
+
+@pytest.mark.parametrize("action", ["meta", "continuous"])
+def test_dense_single_lane_traffic_never_makes_the_ego_reverse(action):
+    r = highway_rollouts("highway-v0", "reckless", 3, 0, action=action,
+                         env_config={"lanes_count": 1, "vehicles_density": 2.5, "duration": 15})
+    assert r["reversing_steps"] == 0 and r["ego_at_fault_collisions"] == 0

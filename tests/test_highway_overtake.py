@@ -19,17 +19,22 @@ def test_every_step_is_the_intention_models_pwa_step(intention, disturbance):
     """The env moves the ego and the lead exactly as ``PWASystem.step`` (6.3)-(6.7) says."""
     env = gym.make("guardian/HighwayOvertake-v0", config={"intention": intention, "disturbance": disturbance})
     base = env.unwrapped
-    model = intention_models()[intention]
+    model = intention_models(base.params)[intention]
     env.reset(seed=4)
     rng = np.random.default_rng(0)
+    base.vehicle.speed = 0.4  # slow enough that braking meets the standstill clip
+    stopped = 0
     for _ in range(40):
-        _, _, term, trunc, info = env.step(rng.uniform(-1, 1, 2))
+        _, _, term, trunc, info = env.step(rng.uniform(-1, 0.2, 2))
         tr = base.last_transition
         expected = model.system.step(tr["state"], tr["input"], tr["disturbance"])
+        stopped += int(expected[0] < 0)
+        expected[0] = max(expected[0], 0.0)  # the one addition: a car held by its brake does not reverse
         assert np.allclose(base.overtake_state(), expected, atol=1e-9)
         assert np.allclose(info["overtake_state"], expected, atol=1e-9)
         if term or trunc:
             break
+    assert stopped > 0  # the clip was exercised
 
 
 def test_continuous_actions_map_onto_U_e():

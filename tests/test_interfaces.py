@@ -13,7 +13,8 @@ def test_car_following_sets_agents_and_the_supervisor_answer_their_protocols(lib
     p = CarFollowingParams()
     assert isinstance(MaximalSet(p), CarFollowingSet)
     assert isinstance(load_or_build(p, cache_dir=tmp_path), CarFollowingSet)
-    env = gym.make("guardian/Overtake-v0")
+    env = gym.make("guardian/HighwayOvertake-v0")
+    env.reset(seed=0)
     assert all(isinstance(make_agent(name, env, np.random.default_rng(0)), Agent) for name in AGENTS)
     assert isinstance(IntentionAwareGuardian(library), Supervisor)
     assert not isinstance(object(), Supervisor)
@@ -24,16 +25,24 @@ def test_every_agent_acts_inside_the_action_space_of_every_env_it_drives():
     highway-env (meta and continuous) returns actions of that space; the MPC drivers refuse highway-v0."""
     import highway_env  # noqa: F401
 
+    from envs.agents import ADVERSARIES
     from envs.mpc import STYLES
 
     envs_ = {"overtake": gym.make("guardian/Overtake-v0"),
+             "highway_overtake": gym.make("guardian/HighwayOvertake-v0"),
+             "highway_overtake_meta": gym.make("guardian/HighwayOvertake-v0",
+                                               config={"action": {"type": "DiscreteMetaAction"}}),
              "meta": gym.make("highway-fast-v0", config={"action": {"type": "DiscreteMetaAction"}}),
              "continuous": gym.make("highway-fast-v0", config={"action": {"type": "ContinuousAction"}})}
     for kind, env in envs_.items():
         for name in AGENTS:
             obs, _ = env.reset(seed=1)
-            if name in STYLES and kind != "overtake":
+            if name in STYLES and kind not in ("overtake", "highway_overtake"):
                 with pytest.raises(ValueError, match="MPC drivers drive"):
+                    make_agent(name, env, np.random.default_rng(0))
+                continue
+            if name in ADVERSARIES and kind == "overtake":
+                with pytest.raises(ValueError, match="highway-env roads"):
                     make_agent(name, env, np.random.default_rng(0))
                 continue
             agent = make_agent(name, env, np.random.default_rng(0))

@@ -32,11 +32,13 @@ def cmd_rollout_highway_env(args) -> int:
     if args.traffic is not None and args.traffic < 0:
         print(f"guardian rollout: --traffic must be >= 0, got {args.traffic}", file=sys.stderr)
         return 2
+    if overtake and args.ego_speed_min is None and args.traffic != 0:
+        args.ego_speed_min = 0.0  # among traffic the ego must be able to wait behind the lead
     library = load_library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
     intentions = (("aggressive", "cautious") if args.intention == "all" else (args.intention,)) if overtake else (None,)
     from guardian.wrapper import GuardianConfig
 
-    gcfg = GuardianConfig(use_intention=not args.no_intention, conflict=args.conflict)
+    gcfg = GuardianConfig(use_intention=not args.no_intention)
     runs = []
     for k, intention in enumerate(intentions):
         label = f"rollout {args.env}" + (f" {intention}" if intention else "")
@@ -44,7 +46,7 @@ def cmd_rollout_highway_env(args) -> int:
             r = highway_rollouts(args.env, args.agent, args.episodes, args.seed, action=args.action,
                                  guardian=not args.no_guardian, library=library, intention=intention,
                                  disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
-                                 env_config={"params": library.params} if library is not None else None,
+                                 safe_start=args.safe_start,
                                  progress=progress_bar(label), rerun_path=args.rerun if k == 0 else None,
                                  video_dir=(args.video / (intention or "all")) if args.video else None)
         except ConfigError as exc:
@@ -57,14 +59,18 @@ def cmd_rollout_highway_env(args) -> int:
             r["intention"] = intention
         runs.append(r)
     result = runs[0] if len(runs) == 1 else combine_runs(runs)
-    text = "\n".join(
-        f"{args.env} {r.get('intention', '')} {args.agent} guardian={'on' if r['guardian'] else 'off'} "
-        f"episodes={r['episodes']} steps={r['steps']} collisions={r['collisions']} "
-        f"ego_at_fault={r['ego_at_fault_collisions']} override_steps={r['override_steps']} "
-        f"safety_violations={r.get('safety_violations', '-')} model_violation_steps={r['model_violation_steps']} "
-        f"conflict_steps={r['conflict_steps']} distance_mean={r['distance_mean']:.1f} m" for r in runs)
+    text = "\n".join(_summary(args, r) for r in runs)
     emit(result, args.json, text)
     return 0
+
+
+def _summary(args, r: dict) -> str:
+    head = f"{args.env} {r.get('intention', '')} {args.agent} guardian={'on' if r['guardian'] else 'off'}".replace("  ", " ")
+    skip = {"env", "agent", "action", "guardian", "intention_aware", "disturbance", "intention", "crashes", "runs"}
+    fields = [f"{k}={v:.1f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in skip]
+    crashes = [f"  crash: episode {c['episode']} step {c['step']} fault={c['fault']} ({c['rule']}) "
+               f"start_inside={c['start_inside']}" for c in r.get("crashes", [])]
+    return "\n".join([head, "  " + " ".join(fields), *crashes])
 
 
 def cmd_rollout(args) -> int:
@@ -115,8 +121,8 @@ def add_commands(sub) -> None:
                    help="with --env: the agent's action type (default: the env's own)")
     p.add_argument("--traffic", type=int, default=None, help="with --env: number of other cars")
     p.add_argument("--video", type=Path, default=None, help="with --env: write each episode as MP4 into this folder")
-    p.add_argument("--conflict", choices=["lead", "traffic"], default="traffic",
-                   help="with --env: who wins when self-safety against the car ahead and the lead's set do not intersect")
+    p.add_argument("--safe-start", action="store_true",
+                   help="with --env and the guardian: draw each start again until it lies in the guardian's sets")
     p.add_argument("--intention", type=intention_name, default="cautious",
                    help="aggressive | cautious | all (C_a, C_c accepted)")
     p.add_argument("--driver", default="mpc",

@@ -1,0 +1,208 @@
+"""highway-env's own vehicles among traffic: ITHA (Chapter 7) for a kinematic-bicycle ego.
+
+A decision object without a simulator: ``BicycleGuardian.step(ego, scene, proposed)`` takes the ego's
+bicycle state (``EgoState``), the other cars as ITHA agents and the proposed ``[acceleration,
+steering]``, and returns the input to apply and a ``Decision``.
+
+* Acceleration: self-safety (7.4) towards the nearest car ahead in every lane the body occupies or
+  may occupy within the step (its swept body, widened by ``BicycleEgo.LATERAL_MARGIN``: highway-env's
+  collision test extrapolates velocities over a step), and, while an entry lasts, the entered lane's
+  follower kept in its set.
+* Steering (continuous agents): the proposed angle if the body, after one step with it and then the
+  straightening steering until the heading is back to 0 (``BicycleEgo.path``), enters no lane whose
+  entry was not ρ̂-responsible (7.5) and stays on the road; else the nearest angle that does. Only the
+  agent's own angle may begin an entry: the guardian never starts a lane change.
+* Meta agents: lane changes are judged once per policy step (``policy_lane_change``); a lane change
+  under way whose target the body has not reached yet is re-judged every step and abandoned
+  (``Decision.refused``) when it is no longer responsible.
+* Fail-safe: the hardest braking down to standstill (never reversing), steering straight.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from guardian.decision import Decision, Entry
+from guardian.ego import BicycleEgo
+from guardian.scene import Scene
+from guardian.traffic import TrafficSupervisor
+from itha.car_following import CarFollowingParams
+from rcis.intervals import intersect_intervals, nearest_in_intervals
+
+
+@dataclass(frozen=True)
+class EgoState:
+    """The bicycle ego at one instant, in highway-env's coordinates (lane ids 0 = leftmost)."""
+
+    front: float            # front bumper along the road [m]
+    y: float                # lateral position of the centre [m]
+    heading: float          # [rad]
+    speed: float            # [m/s]
+    lane: int               # highway-env lane id of the lane it is closest to
+    target_lane: int        # the lane its controller steers to (meta agents); ``lane`` otherwise
+
+
+class BicycleGuardian:
+    """The traffic part alone, for a ``highway-v0``-family ego (see the module docstring).
+
+    Parameters
+    ----------
+    kin : BicycleEgo
+        The ego's kinematics (step, lanes, steering limits).
+    config : guardian.wrapper.GuardianConfig
+    meta : bool
+        The agent gives meta actions (the vehicle's controller steers).
+    """
+
+    def __init__(self, kin: BicycleEgo, config, meta: bool):
+        c = config
+        cf = CarFollowingParams(dt=kin.dt, v_max=c.v_max, h_min=c.h_min, u_min=-c.traffic_accel,
+                                u_max=c.traffic_accel, d_min=-c.traffic_accel, d_max=c.traffic_accel)
+        self.traffic = TrafficSupervisor(cf, None, c.overapprox)
+        self.kin, self.config, self.meta = kin, config, meta
+        self.reset()
+
+    def reset(self) -> None:
+        self.home = None
+        self.authorized = set()   # highway lane ids being entered after a responsible entry
+
+    def itha_lane(self, lane_id: int) -> int:
+        return self.kin.n_lanes - lane_id
+
+    # ---- policy level (meta agents) ------------------------------------------------------------------
+    def policy_lane_change(self, ego: EgoState, scene: Scene, target: int) -> tuple[bool, str]:
+        """Is a meta agent's lane change from ``ego.lane`` to ``target`` ρ̂-responsible now (7.5), with an
+        acceleration that also keeps self-safety?"""
+        if ego.lane != ego.target_lane:
+            return False, "a lane change is already under way"
+        if not 0 <= target < self.kin.n_lanes:
+            return False, "no such lane"
+        lane = self.itha_lane(target)
+        verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(ego.lane)}), lane)
+        if not verdict.responsible:
+            return False, verdict.reason
+        both = {self.itha_lane(ego.lane), lane}
+        speeds, why = self.traffic.self_safe_speeds(scene.with_ego_lanes(both))
+        ok = bool(self.kin.accel_for_speeds(ego.speed, intersect_intervals(speeds, verdict.speeds)))
+        return ok, "" if ok else (why or "no input reaches a responsible and self-safe speed")
+
+    # ---- one simulation step -----------------------------------------------------------------------------
+    def step(self, ego: EgoState, scene: Scene, proposed) -> tuple[np.ndarray, Decision]:
+        """Supervise one simulation step; ``proposed = [acceleration, steering]`` as the vehicle computed it.
+
+        Returns
+        -------
+        applied : ndarray
+            ``[acceleration, steering]`` with the acceleration in ``[-a_max, a_max]`` and never below
+            ``-speed / dt`` (no reversing).
+        decision : Decision
+            ``refused`` holds the target of a meta lane change to abandon.
+        """
+        a_prop, steer_prop = (float(v) for v in proposed)
+        kin = self.kin
+        d = Decision(proposed=[a_prop, steer_prop], applied=[], changed="none")
+        now = set(kin.swept_lanes(ego.y, ego.heading, 0.0)) or {ego.lane}
+        if len(now) == 1:
+            self.home = next(iter(now))
+        elif self.home not in now:
+            self.home = ego.lane
+        self.authorized &= now - {self.home}
+        if self.meta:
+            steer, occupied, entry = (steer_prop, *self._meta_lanes(ego, scene, now, d))
+        else:
+            steer, occupied, entry = self._steering(ego, scene, now, steer_prop, d)
+        accel = self._accelerations(ego, scene, occupied, entry, d)
+        if accel:
+            a = nearest_in_intervals(accel, a_prop)
+        else:
+            a = max(-self.config.traffic_accel, -ego.speed / kin.dt)
+            d.level, d.changed = "failsafe", "failsafe"
+            d.note("failsafe: no self-safe acceleration; braking as hard as the model allows, down to standstill")
+        d.applied = [a, steer]
+        self.authorized |= {self.kin.n_lanes - lane for lane in d.entered}
+        d.entered = sorted({self.itha_lane(i) for i in self.authorized})
+        d.lanes = sorted({self.itha_lane(i) for i in now | self.authorized})  # never a lane entered unchecked
+        d.admissible_acceleration = [list(r) for r in accel]
+        d.in_invariant_set = bool(accel)
+        if d.changed == "none" and (abs(a - a_prop) > 1e-9 or abs(steer - steer_prop) > 1e-12):
+            d.changed = "throttle" if abs(steer - steer_prop) <= 1e-12 else (
+                "steering" if abs(a - a_prop) <= 1e-9 else "both")
+        return np.array([a, steer]), d
+
+    def _entry(self, ego: EgoState, scene: Scene, now: set, lane_id: int, d: Decision) -> list | None:
+        """Next speeds making the entry into highway lane ``lane_id`` responsible (7.5) and self-safe in
+        both lanes; None (and the refusal recorded) when there are none."""
+        lane = self.itha_lane(lane_id)
+        verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(i) for i in now}), lane)
+        speeds = verdict.speeds
+        if verdict.responsible:
+            safe, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes({self.itha_lane(i) for i in now} | {lane}))
+            speeds = intersect_intervals(speeds, safe)
+        ok = verdict.responsible and bool(self.kin.accel_for_speeds(ego.speed, speeds))
+        reason = verdict.reason or ("" if ok else "no acceleration reaches a responsible, self-safe speed")
+        d.entries.append(Entry(lane, ok, reason))
+        if not ok:
+            d.refused.append(lane)
+            return None
+        d.entered.append(lane)
+        return speeds
+
+    def _meta_lanes(self, ego: EgoState, scene: Scene, now: set, d: Decision):
+        """Lanes the meta ego occupies this step and the entry's next speeds; a lane change not yet
+        begun is re-judged, and abandoned (``d.refused``) when it is no longer responsible."""
+        if ego.target_lane != ego.lane and ego.target_lane not in now:
+            speeds = self._entry(ego, scene, now, ego.target_lane, d)
+            if speeds is None:
+                d.changed = "lane_change"
+                d.note(f"lane change to lane {self.itha_lane(ego.target_lane)} abandoned: {d.entries[-1].reason}")
+                return now | {ego.lane}, [(0.0, np.inf)]
+            return now | {ego.lane, ego.target_lane}, speeds
+        return now | {ego.lane, ego.target_lane}, [(0.0, np.inf)]
+
+    def _steering(self, ego: EgoState, scene: Scene, now: set, proposed: float, d: Decision):
+        """The steering nearest to the proposal whose path enters no lane irresponsibly."""
+        kin = self.kin
+        for k, steer in enumerate(kin.steering_candidates(proposed, ego.heading)):
+            y1, h1 = kin.predict(ego.y, ego.heading, ego.speed, steer)
+            if abs(h1) > kin.MAX_HEADING and abs(h1) > abs(ego.heading):
+                continue
+            lanes, depth = kin.path_lanes(ego.y, ego.heading, ego.speed, steer)
+            if depth > kin.off_road_depth(ego.y, ego.heading) + 1e-9:
+                continue  # leaves the road, or further than it already is
+            new = lanes - now
+            entry = [(0.0, np.inf)]
+            if new:
+                if k > 0 or len(now) != 1 or len(new) != 1:
+                    continue
+                entry = self._entry(ego, scene, now, next(iter(new)), d)
+                if entry is None:
+                    d.note(f"entering lane {d.entries[-1].lane} refused: {d.entries[-1].reason}")
+                    continue
+            return float(steer), now | set(kin.swept_lanes(y1, h1, ego.speed)) | set(lanes), entry
+        d.level, d.changed = "failsafe", "failsafe"
+        d.note("failsafe: no steering keeps the body out of lanes it may not enter; straightening")
+        steer = kin.straightening(ego.heading, ego.speed)
+        lanes, _ = kin.path_lanes(ego.y, ego.heading, ego.speed, steer)
+        return steer, now | set(lanes), [(0.0, np.inf)]
+
+    def _accelerations(self, ego: EgoState, scene: Scene, occupied: set, entry: list, d: Decision) -> list:
+        """Self-safe accelerations (7.4) in every occupied lane, within the entry's responsible speeds,
+        keeping each entered lane's follower while that is possible."""
+        kin = self.kin
+        itha = {self.itha_lane(i) for i in occupied}
+        ego_scene = scene.with_ego_lanes(itha)
+        speeds, why = self.traffic.self_safe_speeds(ego_scene)
+        d.note(why)
+        speeds = intersect_intervals(speeds, entry)
+        progress = kin.min_progress(ego.speed, ego.heading)
+        for lane in sorted(itha - {self.itha_lane(self.home)}):
+            fs, why = self.traffic.follower_speeds(ego_scene, lane, ego_progress_min=progress)
+            kept = intersect_intervals(speeds, fs)
+            if kin.accel_for_speeds(ego.speed, kept):
+                speeds = kept
+            else:
+                d.level = "follower_dropped"
+                d.note(why)
+                d.note("responsibility for a follower not kept (it was responsible when the entry began)")
+        return kin.accel_for_speeds(ego.speed, speeds)

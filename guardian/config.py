@@ -1,0 +1,59 @@
+"""The guardian's settings: one frozen dataclass, highway-env's limits as defaults."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from guardian.errors import ConfigError
+
+CONFLICT_CHOICES = ("lead", "traffic")
+OVERAPPROXIMATIONS = ("trivial", "ordered")
+
+
+@dataclass(frozen=True)
+class GuardianConfig:
+    """Bounds of the traffic part and choices of the lead part.
+
+    Attributes
+    ----------
+    h_min : float
+        [m] bumper-to-bumper headway kept to traffic (2 m covers a lane-changing leader's lost
+        progress, at most ``θ_max / 2`` times its sideways travel: 0.6 m at 0.3 rad over a 4 m lane).
+    v_max : float
+        [m/s] the traffic's top speed (highway-env's ``Vehicle.MAX_SPEED``).
+    traffic_accel : float
+        [m/s^2] ``|a|`` of the traffic (``IDMVehicle.ACC_MAX``): their braking and acceleration bound,
+        and highway-env's ego's.
+    overapprox : str
+        ``trivial`` (highway-env traffic announces no lane change) or ``ordered``.
+    use_intention : bool
+        Lead part: switch to ``C_a`` / ``C_c`` once identified (Theorem 4).
+    horizon : int
+        Lead part: the estimator's window N.
+    priority : tuple
+        Which input the override changes first (0: throttle, 1: steering).
+    resample_unsafe_start : bool
+        At reset, draw the start again (up to ``start_attempts`` times) until it lies in the guardian's
+        invariant sets; otherwise such a start is only reported (``info["guardian"]["start_inside"]``).
+    start_attempts : int
+    """
+
+    h_min: float = 2.0
+    v_max: float = 40.0
+    traffic_accel: float = 6.0
+    overapprox: str = "trivial"
+    use_intention: bool = True
+    horizon: int = 10
+    priority: tuple = (0, 1)
+    resample_unsafe_start: bool = False
+    start_attempts: int = 100
+
+    def __post_init__(self):
+        if self.overapprox not in OVERAPPROXIMATIONS:
+            raise ConfigError(f"GuardianConfig.overapprox must be one of {OVERAPPROXIMATIONS}, got {self.overapprox!r}")
+        if sorted(self.priority) != [0, 1]:
+            raise ConfigError(f"GuardianConfig.priority must order the inputs 0 and 1, got {self.priority!r}")
+        for name in ("h_min", "v_max", "traffic_accel"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"GuardianConfig.{name} must be positive, got {getattr(self, name)!r}")
+        if self.horizon < 1 or self.start_attempts < 1:
+            raise ConfigError("GuardianConfig.horizon and start_attempts must be at least 1")

@@ -1,0 +1,57 @@
+"""The road at one instant as the guardian's decisions read it: the ego and the other cars as ITHA
+agents (7.3).
+
+Positions are front bumpers along the direction of travel; lanes are ITHA numbers (1 = rightmost);
+a car changing lanes occupies both. Built from a simulator by ``guardian.sensing`` and by hand in
+the tests: no simulator in here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Car:
+    front: float        # front-bumper position along the direction of travel [m]
+    speed: float        # [m/s]
+    lanes: frozenset    # ITHA lane numbers the car occupies (1 = rightmost)
+    length: float       # [m]
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The road at one instant; each lane's nearest car ahead of and behind the ego, computed once."""
+
+    ego: Car
+    others: tuple
+    n_lanes: int
+
+    def with_ego_lanes(self, lanes) -> "Scene":
+        """The same road with the ego occupying ``lanes`` (e.g. where it may be after a step)."""
+        e = self.ego
+        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name), self.others, self.n_lanes)
+
+    def leader(self, lane: int):
+        """The nearest car in ``lane`` whose front is at or ahead of the ego's (None if there is none)."""
+        return self._neighbours(lane)[0]
+
+    def follower(self, lane: int):
+        """The nearest car in ``lane`` whose front is behind the ego's (None if there is none)."""
+        return self._neighbours(lane)[1]
+
+    def _neighbours(self, lane: int):
+        cache = self.__dict__.setdefault("_lane_neighbours", {})
+        if lane not in cache:
+            ahead = behind = None
+            front = self.ego.front
+            for c in self.others:  # the first of equals wins, as min/max over the list did
+                if lane not in c.lanes:
+                    continue
+                if c.front >= front:
+                    if ahead is None or c.front < ahead.front:
+                        ahead = c
+                elif behind is None or c.front > behind.front:
+                    behind = c
+            cache[lane] = (ahead, behind)
+        return cache[lane]
