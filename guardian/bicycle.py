@@ -134,7 +134,12 @@ class BicycleGuardian:
         """Next speeds making the entry into highway lane ``lane_id`` responsible (7.5) and self-safe in
         both lanes; None (and the refusal recorded) when there are none."""
         lane = self.itha_lane(lane_id)
-        verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(i) for i in now}), lane)
+        start = now if len(now) == 1 else {ego.lane}  # straddling: judged from the lane it is closest to
+        if abs(next(iter(start)) - lane_id) != 1:
+            d.entries.append(Entry(lane, False, "not next to the lane the ego is in"))
+            d.refused.append(lane)
+            return None
+        verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(i) for i in start}), lane)
         speeds = verdict.speeds
         if verdict.responsible:
             safe, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes({self.itha_lane(i) for i in now} | {lane}))

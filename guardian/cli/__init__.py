@@ -1,6 +1,6 @@
 """The ``guardian`` command line: one entry point, one module per command group.
 
-``sets`` (rcis build|certify|export|plot), ``rollout``, ``itha`` (highway|processors), ``data``
+``sets`` (rcis build|certify|export|plot), ``rollout``, ``falsify``, ``itha`` (highway|processors), ``data``
 (highd generate, data convert ngsim, replay), ``serve``; ``common`` holds what they share.
 """
 from __future__ import annotations
@@ -8,13 +8,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from guardian.cli import data, itha, rollout, serve, sets
+from guardian.cli import data, falsify, itha, rollout, serve, sets
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="guardian", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
-    for group in (sets, rollout, itha, data, serve):
+    for group in (sets, rollout, falsify, itha, data, serve):
         group.add_commands(sub)
     return parser
 

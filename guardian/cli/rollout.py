@@ -1,6 +1,7 @@
 """``guardian rollout``: supervised rollouts (the overtake env, or a highway-env environment with --env)."""
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -34,6 +35,11 @@ def cmd_rollout_highway_env(args) -> int:
         return 2
     if overtake and args.ego_speed_min is None and args.traffic != 0:
         args.ego_speed_min = 0.0  # among traffic the ego must be able to wait behind the lead
+    try:
+        env_config = env_config_option(args.env, args.env_config or [])
+    except ValueError as exc:
+        print(f"guardian rollout: {exc}", file=sys.stderr)
+        return 2
     library = load_library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
     intentions = (("aggressive", "cautious") if args.intention == "all" else (args.intention,)) if overtake else (None,)
     from guardian.wrapper import GuardianConfig
@@ -46,7 +52,7 @@ def cmd_rollout_highway_env(args) -> int:
             r = highway_rollouts(args.env, args.agent, args.episodes, args.seed, action=args.action,
                                  guardian=not args.no_guardian, library=library, intention=intention,
                                  disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
-                                 safe_start=args.safe_start,
+                                 safe_start=args.safe_start, env_config=env_config,
                                  progress=progress_bar(label), rerun_path=args.rerun if k == 0 else None,
                                  video_dir=(args.video / (intention or "all")) if args.video else None)
         except ConfigError as exc:
@@ -62,6 +68,36 @@ def cmd_rollout_highway_env(args) -> int:
     text = "\n".join(_summary(args, r) for r in runs)
     emit(result, args.json, text)
     return 0
+
+
+def env_config_option(env_id: str, pairs: list) -> dict:
+    """``KEY=VALUE`` pairs as the env's config (values read as JSON, else as text); a key the env
+    does not have is refused with its name."""
+    known = set(_env_class(env_id).default_config())
+    out = {}
+    for pair in pairs:
+        key, sep, text = pair.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--env-config takes KEY=VALUE, got {pair!r}")
+        if key not in known:
+            raise ValueError(f"--env-config: {env_id} has no config key {key!r}")
+        try:
+            out[key] = json.loads(text)
+        except json.JSONDecodeError:
+            out[key] = text
+    return out
+
+
+def _env_class(env_id: str):
+    import importlib
+
+    import gymnasium as gym
+
+    entry = gym.spec(env_id).entry_point
+    if callable(entry):
+        return entry
+    module, _, name = entry.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def _summary(args, r: dict) -> str:
@@ -121,6 +157,8 @@ def add_commands(sub) -> None:
                    help="with --env: the agent's action type (default: the env's own)")
     p.add_argument("--traffic", type=int, default=None, help="with --env: number of other cars")
     p.add_argument("--video", type=Path, default=None, help="with --env: write each episode as MP4 into this folder")
+    p.add_argument("--env-config", action="append", metavar="KEY=VALUE", default=None,
+                   help="with --env: a config key of the env (value read as JSON), repeatable")
     p.add_argument("--safe-start", action="store_true",
                    help="with --env and the guardian: draw each start again until it lies in the guardian's sets")
     p.add_argument("--intention", type=intention_name, default="cautious",

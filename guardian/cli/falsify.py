@@ -1,0 +1,72 @@
+"""``guardian falsify``: the falsification campaign (``guardian.falsify``) and its table."""
+from __future__ import annotations
+
+import sys
+
+from guardian.cli.common import emit, progress_bar
+
+COLUMNS = (("episodes", "episodes"), ("collisions", "collisions"), ("ego_at_fault_collisions", "at fault"),
+           ("starts_outside", "starts outside"), ("ego_at_fault_after_outside_starts", "at fault after outside"),
+           ("safety_violations", "exits"), ("failsafe_steps", "fail-safe steps"),
+           ("unchecked_entries", "unchecked entries"), ("reversing_steps", "reversing steps"),
+           ("unsupervised_steps", "unsupervised"), ("exceptions", "exceptions"))
+
+
+def table(rows: list, title: str) -> str:
+    header = [title] + [name for _, name in COLUMNS]
+    body = [[r["group"]] + [str(r[k]) for k, _ in COLUMNS] for r in rows]
+    widths = [max(len(line[i]) for line in [header, *body]) for i in range(len(header))]
+    fmt = lambda line: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
+    return "\n".join([fmt(header), *(fmt(line) for line in body)])
+
+
+def cmd_falsify(args) -> int:
+    from guardian.falsify import matrix, run_campaign
+
+    if args.episodes < 1:
+        print(f"guardian falsify: --episodes must be at least 1, got {args.episodes}", file=sys.stderr)
+        return 2
+    if args.workers < 1:
+        print(f"guardian falsify: --workers must be at least 1, got {args.workers}", file=sys.stderr)
+        return 2
+    cells = matrix(guardian=not args.no_guardian, only=args.only)
+    if args.agent:
+        cells = [c for c in cells if c.agent in args.agent]
+        if not cells:
+            print(f"guardian falsify: no cell drives agent(s) {', '.join(args.agent)}", file=sys.stderr)
+            return 2
+    result = run_campaign(cells, args.episodes, args.seed, args.workers, args.scheduler, args.cache_dir,
+                          progress_bar("falsify"))
+    lines = [f"{result['episodes']} episodes ({result['cells']} cells x {args.episodes}), "
+             f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, "
+             f"{args.workers} worker(s)", "",
+             table([dict(result["totals"], group="all")], "campaign"), "",
+             table(result["by_env"], "environment"), "", table(result["by_agent"], "agent"), ""]
+    if result["failures"]:
+        lines.append("failures (each replays alone):")
+        lines += [f"  {f['kind']}: {f['command']}" for f in result["failures"]]
+    else:
+        lines.append("no failures")
+    emit(result, args.json, "\n".join(lines))
+    bad = result["totals"].get("ego_at_fault_collisions", 0) + result["totals"].get("exceptions", 0) + \
+        result["totals"].get("unchecked_entries", 0) + result["totals"].get("reversing_steps", 0) + \
+        result["totals"].get("unsupervised_steps", 0)
+    return 1 if bad and not args.no_guardian else 0
+
+
+def add_commands(sub) -> None:
+    from guardian.falsify import ROAD_AGENTS, MPC_AGENTS
+
+    p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
+    p.add_argument("--episodes", type=int, default=5, help="episodes per cell of the matrix (default 5)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--only", choices=["overtake", "highway"], default=None,
+                   help="only guardian/HighwayOvertake-v0, or only the highway-v0 family")
+    p.add_argument("--agent", action="append", choices=ROAD_AGENTS + MPC_AGENTS, default=None,
+                   help="only cells of this agent (repeatable)")
+    p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")
+    p.add_argument("--workers", type=int, default=2, help="local processes (default 2)")
+    p.add_argument("--scheduler", default=None, help="a Dask scheduler address instead of local processes")
+    p.add_argument("--cache-dir", default=None, help="where the overtake sets are cached")
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=cmd_falsify)

@@ -1,0 +1,249 @@
+"""The falsification campaign: many seeded episodes of adversarial and random agents, one table.
+
+A campaign is a list of ``Cell`` (an environment configuration and an agent) run for some episodes
+each. Every episode is one ``guardian rollout --episodes 1 --seed S`` (``Cell.command`` prints it), so
+any failure the table reports can be replayed alone. Episodes are spread over local processes or a
+Dask cluster (``scheduler``), as the HighD replay does; results do not depend on how they are spread.
+
+The matrix (``matrix``):
+
+* ``guardian/HighwayOvertake-v0``: every agent of ``envs.agents`` that drives a road (the MPC drivers
+  with continuous actions only) x both action types x both intentions x both disturbance modes x four
+  traffic settings: none (the two cars of Section 6.5, the dissertation's parameters), 4 cars on 2
+  lanes, 8 cars on 3 lanes with 4 from behind, 12 fast cars (30-38 m/s) on 3 lanes with 6 from behind;
+* ``highway-v0`` and ``highway-fast-v0``: the same agents x both action types x six settings: the
+  env's own, density 2.5, 2 lanes at density 1.5, one lane at density 2.5, policy frequency 5, and
+  policy frequency 15 (``highway-fast-v0`` then simulates at 15 Hz too).
+
+The counts are ``guardian.rollout.HighwayTally``'s (each by a written rule; the fault judge is
+``guardian.judge``); ``exceptions`` counts episodes that raised.
+"""
+from __future__ import annotations
+
+import json
+import time
+import traceback
+from dataclasses import dataclass, field
+
+OVERTAKE_ENV = "guardian/HighwayOvertake-v0"
+ROAD_AGENTS = ("random", "reckless", "seek", "brake_check", "oscillate", "hold", "trap")
+MPC_AGENTS = ("mpc", "bad")
+OVERTAKE_TRAFFIC = (
+    ("two cars", 0, {}),
+    ("4 cars, 2 lanes", 4, {}),
+    ("8 cars, 3 lanes", 8, {"lanes_count": 3, "traffic_from_behind": 4}),
+    ("12 fast cars, 3 lanes", 12, {"lanes_count": 3, "traffic_from_behind": 6, "traffic_speed_range": [30.0, 38.0]}),
+)
+HIGHWAY_SETTINGS = (
+    ("own config", {}),
+    ("density 2.5", {"vehicles_density": 2.5}),
+    ("2 lanes, density 1.5", {"lanes_count": 2, "vehicles_density": 1.5}),
+    ("1 lane, density 2.5", {"lanes_count": 1, "vehicles_density": 2.5}),
+    ("policy 5 Hz", {"policy_frequency": 5}),
+    ("policy 15 Hz", {"policy_frequency": 15, "simulation_frequency": 15}),
+)
+COUNTED = ("collisions", "ego_at_fault_collisions", "starts_outside", "collisions_after_outside_starts",
+           "ego_at_fault_after_outside_starts", "safety_violations", "failsafe_steps", "conflict_steps",
+           "unchecked_entries", "reversing_steps", "unsupervised_steps", "override_steps", "steps")
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One configuration of the matrix."""
+
+    env: str
+    agent: str
+    action: str
+    setting: str
+    intention: str | None = None
+    disturbance: str = "random"
+    traffic: int | None = None
+    env_config: tuple = ()          # sorted (key, json value) pairs
+    guardian: bool = True
+
+    @property
+    def config(self) -> dict:
+        return {k: json.loads(v) for k, v in self.env_config}
+
+    def command(self, seed: int) -> str:
+        """The ``guardian rollout`` that replays episode ``seed`` of this cell alone."""
+        parts = ["guardian rollout", f"--env {self.env}", f"--agent {self.agent}", f"--action {self.action}"]
+        if self.env == OVERTAKE_ENV:
+            parts += [f"--intention {self.intention}", f"--disturbance {self.disturbance}", f"--traffic {self.traffic}"]
+        parts += [f"--env-config {k}={v.replace(' ', '')}" for k, v in self.env_config]
+        if not self.guardian:
+            parts.append("--no-guardian")
+        parts += ["--episodes 1", f"--seed {seed}", "--json"]
+        return " ".join(parts)
+
+
+def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
+    return Cell(env, agent, action, setting, env_config=tuple(sorted((k, json.dumps(v)) for k, v in config.items())),
+                guardian=guardian, **kw)
+
+
+def matrix(guardian: bool = True, only: str | None = None) -> list[Cell]:
+    """The campaign's cells (``only``: ``overtake`` or ``highway``)."""
+    cells = []
+    if only in (None, "overtake"):
+        for setting, traffic, config in OVERTAKE_TRAFFIC:
+            for action in ("continuous", "meta"):
+                agents = ROAD_AGENTS + (MPC_AGENTS if action == "continuous" else ())
+                for agent in agents:
+                    for intention in ("aggressive", "cautious"):
+                        for disturbance in ("random", "adversarial"):
+                            cells.append(_cell(OVERTAKE_ENV, agent, action, setting, config, guardian,
+                                               intention=intention, disturbance=disturbance, traffic=traffic))
+    if only in (None, "highway"):
+        for env in ("highway-v0", "highway-fast-v0"):
+            for setting, config in HIGHWAY_SETTINGS:
+                for action in ("continuous", "meta"):
+                    for agent in ROAD_AGENTS:
+                        cells.append(_cell(env, agent, action, setting, config, guardian))
+    return cells
+
+
+# ---- running --------------------------------------------------------------------------------------------
+_LIBRARIES: dict = {}
+
+
+def _library(traffic: int, cache_dir):
+    """The overtake library a HighwayOvertake cell needs, built or loaded once per process."""
+    from intention.library import build_library
+    from intention.params import OvertakeParams
+
+    params = OvertakeParams() if traffic == 0 else OvertakeParams.among_traffic()
+    if params not in _LIBRARIES:
+        _LIBRARIES[params] = build_library(params=params, cache_dir=cache_dir, quiet=True, workers=1)
+    return _LIBRARIES[params]
+
+
+def run_episode(cell: Cell, seed: int, cache_dir=None) -> dict:
+    """One episode of ``cell``: the tally's counts, or the exception it raised."""
+    from guardian.rollout import highway_rollouts
+
+    try:
+        library = _library(cell.traffic, cache_dir) if cell.env == OVERTAKE_ENV else None
+        r = highway_rollouts(cell.env, cell.agent, 1, seed, action=cell.action, guardian=cell.guardian,
+                             library=library, intention=cell.intention, disturbance=cell.disturbance,
+                             traffic=cell.traffic, env_config=cell.config)
+    except Exception:  # noqa: BLE001 - an episode that raises is a finding, counted and kept
+        return {"exception": traceback.format_exc(limit=6)}
+    return r
+
+
+def _chunk(cell: Cell, seeds: list, cache_dir) -> list:
+    return [(seed, run_episode(cell, seed, cache_dir)) for seed in seeds]
+
+
+@dataclass
+class Campaign:
+    """The accumulated counts of a campaign (``add`` each episode's result)."""
+
+    rows: dict = field(default_factory=dict)
+    failures: list = field(default_factory=list)
+    episodes: int = 0
+
+    def add(self, cell: Cell, seed: int, r: dict) -> None:
+        self.episodes += 1
+        for key in self._keys(cell):
+            row = self.rows.setdefault(key, {k: 0 for k in ("episodes", *COUNTED, "exceptions")})
+            row["episodes"] += 1
+            if "exception" in r:
+                row["exceptions"] += 1
+                continue
+            for k in COUNTED:
+                row[k] += r.get(k) or 0
+        if "exception" in r:
+            self.failures.append({"kind": "exception", "cell": cell.setting, "command": cell.command(seed),
+                                  "detail": r["exception"].strip().splitlines()[-1]})
+            return
+        for crash in r["crashes"]:
+            if crash["fault"] == "ego" or not crash["start_inside"]:
+                self.failures.append({"kind": "at-fault collision" if crash["start_inside"] and crash["fault"] == "ego"
+                                      else "collision after a start outside", "fault": crash["fault"],
+                                      "rule": crash["rule"], "cell": cell.setting, "command": cell.command(seed)})
+        for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps"):
+            if r.get(k):
+                self.failures.append({"kind": k, "count": r[k], "cell": cell.setting, "command": cell.command(seed)})
+        if cell.env == OVERTAKE_ENV and r.get("safety_violations"):
+            self.failures.append({"kind": "safe-set exit", "cell": cell.setting, "command": cell.command(seed)})
+
+    @staticmethod
+    def _keys(cell: Cell) -> list:
+        family = "HighwayOvertake" if cell.env == OVERTAKE_ENV else cell.env
+        return [("all",), ("env", family, cell.action), ("agent", cell.agent), ("setting", family, cell.setting)]
+
+    def table(self, kind: str) -> list:
+        return [{"group": " ".join(key[1:]) if kind != "all" else "all", **row}
+                for key, row in sorted(self.rows.items()) if key[0] == kind]
+
+
+def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int = 1, scheduler: str | None = None,
+                 cache_dir=None, progress=None) -> dict:
+    """Run ``episodes`` episodes of every cell; cell ``k`` episode ``i`` has seed ``seed + 1000 k + i``.
+
+    Parameters
+    ----------
+    cells : list of Cell
+    episodes : int
+        Episodes per cell.
+    seed : int
+    workers : int
+        Local processes (1: in this process).
+    scheduler : str, optional
+        A Dask scheduler's address instead of local processes.
+    cache_dir : path, optional
+        The set cache the workers load the overtake libraries from.
+    progress : callable, optional
+        ``progress(done, total)`` after each chunk of episodes.
+
+    Returns
+    -------
+    dict
+        ``episodes, seconds, workers, totals`` (the counts summed), ``by_env`` (per environment and
+        action type), ``by_agent``, ``by_setting``, and ``failures`` (each with the command replaying it).
+    """
+    jobs = [(cell, [seed + 1000 * k + i for i in range(start, min(start + CHUNK, episodes))])
+            for k, cell in enumerate(cells) for start in range(0, episodes, CHUNK)]
+    total = sum(len(s) for _, s in jobs)
+    if any(c.env == OVERTAKE_ENV for c in cells):  # build the sets once, before the workers need them
+        for traffic in {c.traffic for c in cells if c.env == OVERTAKE_ENV}:
+            _library(traffic, str(cache_dir) if cache_dir else None)
+    cache = str(cache_dir) if cache_dir else None
+    camp, done, t0 = Campaign(), 0, time.perf_counter()
+    for cell, results in _run_jobs(jobs, workers, scheduler, cache):
+        for s, r in results:
+            camp.add(cell, s, r)
+        done += len(results)
+        if progress:
+            progress(done, total)
+    return {"episodes": camp.episodes, "seconds": round(time.perf_counter() - t0, 1), "workers": workers,
+            "scheduler": scheduler, "cells": len(cells), "episodes_per_cell": episodes,
+            "totals": camp.table("all")[0] if camp.episodes else {}, "by_env": camp.table("env"),
+            "by_agent": camp.table("agent"), "by_setting": camp.table("setting"),
+            "failures": sorted(camp.failures, key=lambda f: (f["kind"], f["command"]))}
+
+
+CHUNK = 5  # episodes per job: few enough to balance the workers, many enough to reuse a loaded library
+
+
+def _run_jobs(jobs, workers: int, scheduler: str | None, cache):
+    if scheduler:
+        from dask.distributed import Client, as_completed
+
+        with Client(scheduler) as client:
+            futures = {client.submit(_chunk, cell, seeds, cache, pure=False): cell for cell, seeds in jobs}
+            for fut in as_completed(futures):
+                yield futures[fut], fut.result()
+        return
+    if workers <= 1:
+        for cell, seeds in jobs:
+            yield cell, _chunk(cell, seeds, cache)
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(_chunk, cell, seeds, cache): cell for cell, seeds in jobs}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()

@@ -1,0 +1,65 @@
+"""The falsification campaign: the matrix the promise is tested on, seeding, replay of a failure."""
+import json
+import shlex
+
+import pytest
+
+from guardian.falsify import COUNTED, OVERTAKE_ENV, Campaign, Cell, matrix, run_campaign, run_episode
+
+
+def test_the_matrix_spans_what_the_promise_is_tested_on():
+    cells = matrix()
+    overtake = [c for c in cells if c.env == OVERTAKE_ENV]
+    highway = [c for c in cells if c.env != OVERTAKE_ENV]
+    assert {c.agent for c in cells} >= {"random", "reckless", "seek", "brake_check", "oscillate", "hold", "trap"}
+    assert {"mpc", "bad"} <= {c.agent for c in overtake if c.action == "continuous"}
+    assert {(c.intention, c.disturbance) for c in overtake} == {(i, d) for i in ("aggressive", "cautious")
+                                                                for d in ("random", "adversarial")}
+    assert {c.traffic for c in overtake} == {0, 4, 8, 12}
+    assert {c.config.get("lanes_count", 2) for c in overtake} == {2, 3}
+    assert {c.env for c in highway} == {"highway-v0", "highway-fast-v0"}
+    assert {c.action for c in cells} == {"continuous", "meta"}
+    assert max(c.config.get("vehicles_density", 1) for c in highway) == 2.5
+    assert {c.config.get("policy_frequency", 1) for c in highway} == {1, 5, 15}
+    assert all(c.guardian for c in cells) and not any(c.guardian for c in matrix(guardian=False))
+
+
+def test_a_cells_command_replays_its_episode(capsys):
+    from guardian.cli import main
+
+    cell = next(c for c in matrix(only="highway") if c.env == "highway-fast-v0" and c.agent == "brake_check"
+                and c.config.get("vehicles_density") == 2.5 and c.action == "continuous")
+    seed = 7
+    direct = run_episode(cell, seed)
+    argv = shlex.split(cell.command(seed))[2:]  # "guardian rollout ..." -> the sub-command's arguments
+    assert main(["rollout", *argv]) == 0
+    replayed = json.loads(capsys.readouterr().out)
+    assert {k: replayed[k] for k in COUNTED} == {k: direct[k] for k in COUNTED}
+
+
+def test_results_do_not_depend_on_how_episodes_are_spread():
+    cells = [c for c in matrix(only="highway") if c.env == "highway-fast-v0" and c.setting == "density 2.5"
+             and c.agent in ("seek", "trap")]
+    one = run_campaign(cells, 3, seed=11, workers=1)
+    two = run_campaign(cells, 3, seed=11, workers=2)
+    assert one["episodes"] == two["episodes"] == 3 * len(cells)
+    for table in ("totals", "by_env", "by_agent", "failures"):
+        assert one[table] == two[table]
+
+
+def test_an_episode_that_raises_is_counted_with_its_command():
+    bad = Cell("highway-fast-v0", "random", "continuous", "broken", env_config=(("lanes_count", "0"),))
+    r = run_episode(bad, 0)
+    assert "exception" in r
+    camp = Campaign()
+    camp.add(bad, 0, r)
+    assert camp.table("all")[0]["exceptions"] == 1
+    assert camp.failures[0]["kind"] == "exception" and "--env-config lanes_count=0" in camp.failures[0]["command"]
+
+
+@pytest.mark.parametrize("argv, message", [(["--episodes", "0"], "--episodes"), (["--workers", "0"], "--workers")])
+def test_the_command_refuses_nonsense(argv, message, capsys):
+    from guardian.cli import main
+
+    assert main(["falsify", *argv]) == 2
+    assert message in capsys.readouterr().err
