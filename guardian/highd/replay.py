@@ -27,6 +27,7 @@ import tracemalloc
 from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,17 @@ class ReplayConfig:
 
 
 def default_sample() -> Path:
-    return Path(__file__).resolve().parents[2] / "data" / "highd_sample"
+    """The shipped HighD-format sample, found through the installed package ``guardian.data``.
+
+    Returns
+    -------
+    Path
+        The folder holding ``01_recordingMeta.csv``, ``01_tracksMeta.csv`` and ``01_tracks.csv``.
+    """
+    folder = resources.files("guardian.data") / "highd_sample"
+    if not isinstance(folder, Path):  # e.g. a zip import: the reader needs real files
+        raise FileNotFoundError(f"the shipped sample is not a folder on disk ({folder}); install guardian unzipped")
+    return folder
 
 
 # ---- per recording (runs in workers) ------------------------------------------------------------
