@@ -108,13 +108,7 @@ class OvertakeLibrary:
 def _payload(name: str, params: OvertakeParams, settings: LibrarySettings, seed_key: str) -> dict:
     return {"set": name, "params": params.as_dict(), "max_iterations": settings.max_iterations(name),
             "merge": settings.merge, "cover_budget": settings.cover_budget, "seed": SEED_OF[name],
-            "seed_key": seed_key, "code": code_fingerprint(intention_models_file())}
-
-
-def intention_models_file() -> str:
-    import intention.models
-
-    return intention.models.__file__
+            "seed_key": seed_key, "code": code_fingerprint(__name__)}
 
 
 def _compute(name: str, params: OvertakeParams, settings: LibrarySettings, seed: Region, quiet: bool):
