@@ -11,12 +11,12 @@ from guardian.cli.common import emit, progress_bar, positive_error
 def cmd_highd_generate(args) -> int:
     from guardian.highd.generate import TrafficParams, generate
 
-    bad = positive_error(args, "recordings")
+    bad = positive_error(args, "recordings", "frame_rate")
     if bad or args.minutes <= 0:
         print(f"guardian highd generate: {bad or '--minutes must be positive'}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    paths = generate(args.out, args.recordings, args.minutes, args.seed, TrafficParams(lanes=args.lanes),
+    paths = generate(args.out, args.recordings, args.minutes, args.seed, TrafficParams(lanes=args.lanes, frame_rate=args.frame_rate),
                      progress=progress_bar("highd generate"),
                      first_id=args.first_id)
     result = {"out": str(args.out), "recordings": args.recordings, "files": [str(p) for p in paths],
@@ -84,12 +84,13 @@ def cmd_replay(args) -> int:
 def add_commands(sub) -> None:
     hd = sub.add_parser("highd", help="HighD-format data")
     hsub = hd.add_subparsers(dest="highd_command", required=True)
-    p = hsub.add_parser("generate", help="write simulated HighD-format recordings (both carriageways, 25 Hz)")
+    p = hsub.add_parser("generate", help="write simulated HighD-format recordings (both carriageways, 25 Hz by default)")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--recordings", type=int, default=1)
     p.add_argument("--minutes", type=float, default=1.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--lanes", type=int, default=3, help="lanes per carriageway")
+    p.add_argument("--frame-rate", type=int, default=25, metavar="HZ", help="frames per second (HighD: 25)")
     p.add_argument("--first-id", type=int, default=1, help="id of the first recording (NN in the file names)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_highd_generate)
