@@ -12,6 +12,7 @@ sight distances, and the two meta files.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -357,7 +358,12 @@ def write_recording(out_dir: Path, recording_id: int, tables) -> list[Path]:
     paths = []
     for kind, df in zip(("recordingMeta", "tracksMeta", "tracks"), tables):
         path = out_dir / file_name(recording_id, kind)
-        df.to_csv(path, index=False)
+        tmp = path.with_name(f".{path.name}.tmp")
+        try:  # whole or absent: an interrupted run leaves no half-written file
+            df.to_csv(tmp, index=False)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
         paths.append(path)
     return paths
 

@@ -25,7 +25,6 @@ import math
 import time
 import tracemalloc
 from contextlib import contextmanager
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from importlib import resources
 from pathlib import Path
@@ -36,6 +35,7 @@ from guardian.highd.convert import ITHAData
 from guardian.highd.cache import load_itha_view
 from guardian.highd.reader import recording_files, recording_ids
 from rcis.cache import default_cache_dir
+from rcis.parallel import process_executor
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
 from itha.car_following import CarFollowingParams, MaximalSet, unsafe_inputs
 from itha.responsibility import EgoSupervisor
@@ -63,6 +63,11 @@ class ReplayConfig:
             raise ValueError(f"input_bounds must be 'fixed' or 'data', got {self.input_bounds!r}")
         if not 0 < self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
+        if not self.u_min < 0 < self.u_max:  # as CarFollowingParams: the ego must be able to brake
+            raise ValueError(f"need u_min < 0 < u_max, got u_min {self.u_min}, u_max {self.u_max}")
+        for name in ("h_min", "v_max"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be positive and finite, got {getattr(self, name)}")
 
 
 def default_sample() -> Path:
@@ -348,7 +353,7 @@ def _pool(workers: int, scheduler: str | None):
         with Client(scheduler) as client:
             yield client
     elif workers > 1:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_parse_on_one_thread) as ex:
+        with process_executor(workers, _parse_on_one_thread) as ex:  # terminated, not drained, on Ctrl-C
             yield ex
     else:
         yield None
