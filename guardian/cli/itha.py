@@ -41,7 +41,8 @@ def cmd_itha_highway(args) -> int:
                      f"infeasible_steps={r['infeasible_steps']}\n{'':8s} distances (m): "
                      + " ".join(f"{d:g}" for d in r["distances"])
                      for oa, r in result.items() if oa in which)
-    text += "\nset: " + " ".join(f"{k}={v}" for k, v in out["set"].items()) + f"\nseconds: {out['seconds']:.1f}"
+    text += "\nset: " + " ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in out["set"].items())
+    text += f"\nseconds: {out['seconds']:.1f}"
     emit(out, args.json, text)
     return 0 if all(result[oa]["unsafe_steps"] == 0 for oa in which) else 1
 
