@@ -148,7 +148,7 @@ def test_the_readme_python_example_runs_and_prints_what_it_says(library, cache_d
     printed = capsys.readouterr().out.strip()
 
     def tokens(s):
-        return s.replace("[", " ").replace("]", " ").split()
+        return s.replace("[", " ").replace("]", " ").replace(",", " ").split()
 
     got, want = tokens(printed), tokens(expected)
     assert len(got) == len(want), (printed, expected)
