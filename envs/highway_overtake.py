@@ -28,6 +28,8 @@ and is truncated after ``duration`` seconds.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 from highway_env.envs.common.abstract import AbstractEnv
 from highway_env.road.lane import LineType, StraightLane
@@ -92,7 +94,13 @@ class HighwayOvertakeEnv(AbstractEnv):
     def __init__(self, config: dict | None = None, render_mode: str | None = None):
         self.lead = None
         self.last_transition = None
+        if render_mode == "rgb_array":  # SDL's offscreen driver: no display is looked for (and no XDG_RUNTIME_DIR
+            os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # error); "dummy" would stop highway-env drawing
         super().__init__(config, render_mode)
+
+    def update_metadata(self, video_real_time_ratio: float = 1) -> None:
+        """``render_fps`` = the policy frequency: videos play at the real rate (highway-env's default, 2, doubles it)."""
+        super().update_metadata(video_real_time_ratio)
 
     def configure(self, config: dict | None) -> None:
         """highway-env's layered config, then checked: unknown keys and unsupported values are refused."""

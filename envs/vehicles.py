@@ -31,6 +31,7 @@ from __future__ import annotations
 import numpy as np
 from highway_env import utils
 from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.graphics import VehicleGraphics
 from highway_env.vehicle.kinematics import Vehicle
 
 from intention.params import OvertakeParams
@@ -39,8 +40,26 @@ CAR_LENGTH = 5.0   # [m]
 CAR_WIDTH = 1.75   # [m]
 
 
+# [RGB] in videos (highway-env's palette); the panel's legend uses the same (guardian.panel)
+COLOURS = {"ego": VehicleGraphics.EGO_COLOR, "lead": VehicleGraphics.PURPLE, "traffic": VehicleGraphics.BLUE,
+           "crashed": VehicleGraphics.RED}
+
+
 class BodyContact:
-    """Collision = the bodies overlap at this instant (no extrapolation, no impact shift)."""
+    """Collision = the bodies overlap at this instant (no extrapolation, no impact shift).
+
+    Also each kind's colour in the video (``ROLE``), red once crashed.
+    """
+
+    ROLE = "traffic"
+
+    @property
+    def color(self):
+        return getattr(self, "_colour", None) or COLOURS["crashed" if self.crashed else self.ROLE]
+
+    @color.setter
+    def color(self, value):
+        self._colour = value
 
     def _is_colliding(self, other, dt):
         if np.linalg.norm(other.position - self.position) > (self.diagonal + other.diagonal) / 2:
@@ -62,6 +81,7 @@ class OvertakeEgo(BodyContact, Vehicle):
     per-simulation-step call) recomputes the command from the last action.
     """
 
+    ROLE = "ego"
     LENGTH = CAR_LENGTH
     WIDTH = CAR_WIDTH
     SPEED_GAIN = 1.0      # [1/s] meta actions: speed tracking
@@ -159,6 +179,7 @@ class OvertakeEgo(BodyContact, Vehicle):
 class IntentionLead(BodyContact, Vehicle):
     """The lead car, driven by an intention model; its next speed is staged by the environment."""
 
+    ROLE = "lead"
     LENGTH = CAR_LENGTH
     WIDTH = CAR_WIDTH
 

@@ -6,7 +6,9 @@ Each subclasses a builtin, so ``except ValueError`` still catches a bad file or 
   supervised as asked;
 * ``HighDFormatError`` (``ValueError``): a HighD-format file is malformed; the message says where;
 * ``ServiceError`` (``Exception``): a refused service request, with the HTTP status a client sees;
-* ``LPError``, ``StaleCacheError`` (``RuntimeError``): the engine's (``rcis.errors``), re-exported.
+* ``LPError``, ``StaleCacheError`` (``RuntimeError``): the engine's (``rcis.errors``), re-exported;
+* ``Terminated`` (``KeyboardInterrupt``): SIGTERM, raised by the command line's handler so that a
+  job stops as it does on Ctrl-C (finished work kept, nothing half-written).
 """
 from __future__ import annotations
 
@@ -34,4 +36,8 @@ class ServiceError(Exception):
         return {"error": self.message, **self.extra}
 
 
-__all__ = ["ConfigError", "HighDFormatError", "LPError", "ServiceError", "StaleCacheError"]
+class Terminated(KeyboardInterrupt):
+    """The process received SIGTERM; handled like Ctrl-C."""
+
+
+__all__ = ["ConfigError", "HighDFormatError", "LPError", "ServiceError", "StaleCacheError", "Terminated"]

@@ -1,41 +1,124 @@
 """A status panel under highway-env's ``rgb_array`` frames: what the guardian allowed and did.
 
-The strip shows the active set and the valid intentions, the admissible acceleration band
-(green) on an axis over the input bounds, the agent's proposed acceleration (red tick) and the
-applied one (black tick), and the reasons of the last override.
+Labelled fields, one row each::
+
+    set: cautious      valid intentions: aggressive, cautious      guardian: OVERRIDE (throttle)
+    a_ex [m/s^2]  -3 |====[admissible]====|  3     | proposed   | applied
+    why: <the reasons of the last override>
+    cars: ■ ego  ■ lead  ■ traffic  ■ crashed
+
+The admissible acceleration band is green on an axis over the input bounds, the agent's proposed
+acceleration a red tick and the applied one a black tick; the last row is the legend of the car
+colours of the frame (``envs.vehicles.COLOURS``).
 """
 from __future__ import annotations
 
-import numpy as np
-from PIL import Image, ImageDraw
+import functools
 
-PANEL_HEIGHT = 64  # [px]
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+PANEL_HEIGHT = 92  # [px]
+ROW = 22           # [px] per row
+FONT_SIZE = 13     # [px]
+GREY, BLACK, GREEN, RED, DARK_RED = (95, 95, 95), (0, 0, 0), (60, 180, 80), (220, 40, 40), (150, 0, 0)
+
+
+@functools.lru_cache(maxsize=2)
+def _font(bold: bool = False):
+    """DejaVu Sans (shipped with matplotlib, a dependency), so spaces and widths are real on every machine."""
+    try:
+        from matplotlib import font_manager
+
+        path = font_manager.findfont(font_manager.FontProperties(family="DejaVu Sans",
+                                                                 weight="bold" if bold else "normal"))
+        return ImageFont.truetype(path, FONT_SIZE)
+    except Exception:  # no FreeType: Pillow's own scalable default
+        return ImageFont.load_default(FONT_SIZE)
+
+
+def _field(draw, x: int, y: int, label: str, value: str, colour=BLACK) -> int:
+    """``label: value`` at (x, y), label grey and value bold; returns the x after it plus a gap."""
+    draw.text((x, y), f"{label}:", fill=GREY, font=_font())
+    x += int(draw.textlength(f"{label}: ", font=_font()))
+    draw.text((x, y), value, fill=colour, font=_font(True))
+    return x + int(draw.textlength(value, font=_font(True))) + 28
 
 
 def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float]) -> np.ndarray:
-    """``frame`` (H x W x 3) with the panel appended below it."""
+    """``frame`` (H x W x 3) with the panel appended below it.
+
+    Parameters
+    ----------
+    frame : ndarray
+        highway-env's ``rgb_array`` frame.
+    record : dict
+        The guardian's last record (``active_set``, ``valid_intentions``, ``overridden``, ``changed``,
+        ``admissible_acceleration``, ``proposed_input``, ``applied_input``, ``reasons``).
+    bounds : (float, float)
+        The acceleration axis (the input bounds).
+
+    Returns
+    -------
+    ndarray
+        ``PANEL_HEIGHT`` rows more than ``frame``.
+    """
+    from envs.vehicles import COLOURS
+
     h, w = frame.shape[:2]
     img = Image.new("RGB", (w, PANEL_HEIGHT), (245, 245, 245))
     draw = ImageDraw.Draw(img)
-    valid = ", ".join(record.get("valid_intentions") or []) or "-"
-    draw.text((6, 3), f"set {record.get('active_set', '-')}   valid {valid}   "
-                      f"{'OVERRIDE ' + str(record.get('changed')) if record.get('overridden') else 'pass-through'}",
-              fill=(0, 0, 0))
+    y = 3
+    x = _field(draw, 8, y, "set", str(record.get("active_set", "-")))
+    x = _field(draw, x, y, "valid intentions", ", ".join(record.get("valid_intentions") or []) or "-")
+    overridden = bool(record.get("overridden"))
+    _field(draw, x, y, "guardian", f"OVERRIDE ({record.get('changed')})" if overridden else "pass-through",
+           DARK_RED if overridden else BLACK)
+
+    y += ROW
+    label = "a_ex [m/s^2]"
+    draw.text((8, y), label, fill=GREY, font=_font())
     lo, hi = bounds
-    x0, x1, y = 40, w - 40, 32
+    lo_text = f"{lo:g}"
+    x0 = 8 + int(draw.textlength(label, font=_font())) + 10 + int(draw.textlength(lo_text, font=_font())) + 6
+    x1 = w - 300
+    yc = y + 8
 
     def px(a: float) -> int:
         return int(round(x0 + (min(max(a, lo), hi) - lo) / (hi - lo) * (x1 - x0)))
 
-    draw.line([(x0, y), (x1, y)], fill=(120, 120, 120), width=1)
-    draw.text((6, y - 6), f"{lo:g}", fill=(80, 80, 80))
-    draw.text((x1 + 4, y - 6), f"{hi:g}", fill=(80, 80, 80))
+    draw.text((x0 - 6 - int(draw.textlength(lo_text, font=_font())), y), lo_text, fill=GREY, font=_font())
+    draw.text((x1 + 6, y), f"{hi:g}", fill=GREY, font=_font())
+    draw.line([(x0, yc), (x1, yc)], fill=(120, 120, 120), width=1)
+    draw.line([(px(0.0), yc - 3), (px(0.0), yc + 3)], fill=(120, 120, 120), width=1)
     for a, b in record.get("admissible_acceleration") or []:
-        draw.rectangle([px(a), y - 5, px(b), y + 5], fill=(60, 180, 80))
-    for key, colour in (("proposed_input", (220, 40, 40)), ("applied_input", (0, 0, 0))):
+        draw.rectangle([px(a), yc - 5, px(b), yc + 5], fill=GREEN)
+    for key, colour in (("proposed_input", RED), ("applied_input", BLACK)):
         u = record.get(key)
         if u:
-            draw.line([(px(u[0]), y - 9), (px(u[0]), y + 9)], fill=colour, width=3)
-    reasons = "; ".join(record.get("reasons") or [])
-    draw.text((6, y + 12), ("a [m/s^2]   " + reasons)[: w // 6], fill=(90, 0, 0) if reasons else (80, 80, 80))
+            draw.line([(px(u[0]), yc - 9), (px(u[0]), yc + 9)], fill=colour, width=3)
+    lx = x1 + 40
+    for name, colour, bar in (("admissible", GREEN, False), ("proposed", RED, True), ("applied", BLACK, True)):
+        if bar:
+            draw.line([(lx + 5, yc - 7), (lx + 5, yc + 7)], fill=colour, width=3)
+        else:
+            draw.rectangle([lx, yc - 5, lx + 12, yc + 5], fill=colour)
+        draw.text((lx + 16, y), name, fill=GREY, font=_font())
+        lx += 16 + int(draw.textlength(name, font=_font())) + 14
+
+    y += ROW
+    reasons = "; ".join(record.get("reasons") or []) or "-"
+    draw.text((8, y), "why:", fill=GREY, font=_font())
+    wx = 8 + int(draw.textlength("why: ", font=_font()))
+    while reasons and draw.textlength(reasons, font=_font()) > w - wx - 8:  # cut to the width, marked
+        reasons = reasons[:-2].rstrip() + "…"
+    draw.text((wx, y), reasons, fill=DARK_RED if record.get("reasons") else GREY, font=_font())
+
+    y += ROW
+    draw.text((8, y), "cars:", fill=GREY, font=_font())
+    lx = 8 + int(draw.textlength("cars: ", font=_font()))
+    for name in ("ego", "lead", "traffic", "crashed"):
+        draw.rectangle([lx, y + 3, lx + 18, y + 13], fill=tuple(COLOURS[name]), outline=(60, 60, 60))
+        draw.text((lx + 23, y), name, fill=BLACK, font=_font())
+        lx += 23 + int(draw.textlength(name, font=_font())) + 16
     return np.concatenate([frame, np.asarray(img, dtype=frame.dtype)], axis=0)

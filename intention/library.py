@@ -8,7 +8,6 @@ induces a supervisor ``S_I(x)`` (``admissible``). Sets are cached on disk.
 from __future__ import annotations
 
 import dataclasses
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from intention.params import OvertakeParams
 from rcis.admissible import AdmissibleInputs
 from rcis.cache import RegionCache, code_fingerprint, payload_key
 from rcis.invariant import COVER_BUDGET, inside_out, stderr_progress
+from rcis.parallel import as_completed, worker_pool
 from rcis.region import Region
 
 SET_NAMES = ("bounded_velocity", "aggressive", "cautious")
@@ -108,13 +108,7 @@ class OvertakeLibrary:
 def _payload(name: str, params: OvertakeParams, settings: LibrarySettings, seed_key: str) -> dict:
     return {"set": name, "params": params.as_dict(), "max_iterations": settings.max_iterations(name),
             "merge": settings.merge, "cover_budget": settings.cover_budget, "seed": SEED_OF[name],
-            "seed_key": seed_key, "code": code_fingerprint(intention_models_file())}
-
-
-def intention_models_file() -> str:
-    import intention.models
-
-    return intention.models.__file__
+            "seed_key": seed_key, "code": code_fingerprint(__name__)}
 
 
 def _compute(name: str, params: OvertakeParams, settings: LibrarySettings, seed: Region, quiet: bool):
@@ -173,14 +167,17 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
             todo.append((name, payload))
         else:
             remember(name, hit[0], hit[1], payload, True)
-    if todo:
-        if workers > 1 and len(todo) > 1:
-            with ProcessPoolExecutor(max_workers=min(workers, len(todo))) as pool:
-                futures = [pool.submit(_compute, n, params, settings, bnd.region, quiet) for n, _ in todo]
-                results = [f.result() for f in futures]
-        else:
-            results = [_compute(n, params, settings, bnd.region, quiet) for n, _ in todo]
-        for (name, payload), (region, info) in zip(todo, results):
+    # Each set is stored as soon as it is computed: an interrupt keeps every finished set.
+    if workers > 1 and len(todo) > 1:
+        payloads = dict(todo)
+        with worker_pool(min(workers, len(todo))) as pool:
+            running = {n: pool.apply_async(_compute, (n, params, settings, bnd.region, quiet)) for n, _ in todo}
+            for name, (region, info) in as_completed(running):
+                cache.store(name, payloads[name], region, info)
+                remember(name, region, info, payloads[name], False)
+    else:
+        for name, payload in todo:
+            region, info = _compute(name, params, settings, bnd.region, quiet)
             cache.store(name, payload, region, info)
             remember(name, region, info, payload, False)
     return OvertakeLibrary(params, {n: sets[n] for n in SET_NAMES}, models)

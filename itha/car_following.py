@@ -426,7 +426,7 @@ def load_or_build(p: CarFollowingParams, cache_dir=None, rebuild: bool = False, 
     PolyhedralSet
     """
     cache = RegionCache(cache_dir, use_cache=not rebuild, **({"log": log} if log else {}))
-    payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint(__file__)}
+    payload = {"set": "car-following", "params": asdict(p), "tighten": H_TIGHTEN, "code": code_fingerprint(__name__)}
 
     def compute():
         S = compute_polyhedral(p, progress=progress)

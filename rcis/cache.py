@@ -15,7 +15,10 @@ cannot be written, warns once naming it and lets the product go on without a cac
 """
 from __future__ import annotations
 
+import ast
+import functools
 import hashlib
+import importlib.util
 import json
 import os
 import sys
@@ -28,28 +31,81 @@ from rcis.errors import StaleCacheError
 from rcis.polyhedron import Polyhedron
 from rcis.region import Region
 
-_ENGINE_FILES = ("lp.py", "polyhedron.py", "region.py", "pwa.py", "invariant.py")
+ENGINE_MODULES = ("rcis.invariant",)  # Pre, inside-out, outside-in; what they import follows
 
 
 def default_cache_dir() -> Path:
     return Path(os.environ.get("GUARDIAN_CACHE_DIR", Path.home() / ".cache" / "guardian"))
 
 
-def code_fingerprint(*model_files) -> str:
-    """Hash of the engine's set-computing source and of the caller's model files.
+def code_fingerprint(*modules: str) -> str:
+    """Hash of the source of every module that shapes a set: the engine's and the model's.
+
+    The modules hashed are ``ENGINE_MODULES`` (Pre, inside-out and outside-in), the given model
+    modules, and, transitively, every module they import from their own top-level packages and
+    from ``rcis`` (``source_closure``): editing any of them (a tolerance, a kernel, a parameter
+    default) gives a new fingerprint, so a set computed by other code is never loaded.
 
     Parameters
     ----------
-    *model_files : path-like
-        Source files that define the system whose sets are cached (e.g. the module building the
-        PWA model). Editing any of them, or the engine, gives a new fingerprint.
+    *modules : str
+        Dotted names of the modules that define and compute the system whose sets are cached
+        (e.g. ``"itha.car_following"``); they must be importable.
     """
-    here = Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for path in [here / f for f in _ENGINE_FILES] + [Path(f).resolve() for f in model_files]:
-        h.update(path.name.encode())
-        h.update(path.read_bytes())
+    for name in source_closure(*ENGINE_MODULES, *modules):
+        h.update(name.encode() + b"\0")
+        h.update(_source(name))
     return h.hexdigest()[:16]
+
+
+def source_closure(*modules: str) -> list[str]:
+    """``modules`` and every module they import (at any depth, also inside functions) from their own
+    top-level packages and from ``rcis``, read from their import statements; sorted names."""
+    packages = {m.split(".")[0] for m in modules} | {"rcis"}
+    seen, todo = set(), list(modules)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        todo += [m for m in _imports(name, _source(name)) if m.split(".")[0] in packages]
+    return sorted(seen)
+
+
+def _source(name: str) -> bytes:
+    """A module's source, read through its loader (wherever the package is installed)."""
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None or not spec.has_location:
+        raise ModuleNotFoundError(f"code_fingerprint: no source for module {name!r}")
+    return spec.loader.get_data(spec.origin)
+
+
+@functools.lru_cache(maxsize=256)
+def _imports(name: str, source: bytes) -> tuple:
+    """The modules ``name`` imports (``from p import m`` counts as ``p.m`` when that is a module)."""
+    spec = importlib.util.find_spec(name)
+    package = name if spec.submodule_search_locations is not None else name.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[:len(parts) - node.level + 1] + ([base] if base else []))
+            for a in node.names:
+                sub = f"{base}.{a.name}"
+                found.append(sub if _is_module(sub) else base)
+    return tuple(found)
+
+
+def _is_module(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):
+        return False
 
 
 def payload_key(payload: dict) -> str:

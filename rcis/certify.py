@@ -24,6 +24,7 @@ import numpy as np
 from rcis import _kernels
 from rcis.admissible import AdmissibleInputs
 from rcis.lp import InequalityLP
+from rcis.parallel import as_completed, worker_pool
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PWASystem
 from rcis.region import Region
@@ -214,18 +215,25 @@ def falsify_all(jobs: dict, workers: int = 1, progress=None, parts: int = 1) -> 
                    for key, job in pieces.items()}
         return _merge(jobs, results)
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, wait
 
-    with multiprocessing.Manager() as manager, ProcessPoolExecutor(max_workers=min(workers, len(pieces))) as pool:
-        queue = manager.Queue()
-        futures = {key: pool.submit(_falsify_reporting, job, key, queue) for key, job in pieces.items()}
-        pending = set(futures.values())
-        while pending:
-            _, pending = wait(pending, timeout=0.2)
-            while not queue.empty():
-                key, n, total = queue.get()
-                report(key, n, total)
-        return _merge(jobs, {key: f.result() for key, f in futures.items()})
+    queue = multiprocessing.get_context().Queue()
+    with worker_pool(min(workers, len(pieces)), _set_progress_queue, (queue,)) as pool:
+        running = {key: pool.apply_async(_falsify_reporting, (job, key)) for key, job in pieces.items()}
+        results = {}
+        for key, rep in as_completed(running, poll=0.2, idle=lambda: _drain(queue, report)):
+            results[key] = rep
+        _drain(queue, report)
+        return _merge(jobs, {key: results[key] for key in pieces})  # the serial order
+
+
+def _drain(queue, report) -> None:
+    import queue as queues
+
+    while True:
+        try:
+            report(*queue.get_nowait())
+        except queues.Empty:
+            return
 
 
 def _split(jobs: dict, parts: int) -> dict:
@@ -255,8 +263,16 @@ def _merge(jobs: dict, results: dict) -> dict:
     return merged
 
 
-def _falsify_reporting(job: dict, key, queue) -> FalsifierReport:
-    return falsify(**job, progress=lambda done, total: queue.put((key, done, total)))
+_PROGRESS_QUEUE = None  # in a worker of falsify_all: where progress goes
+
+
+def _set_progress_queue(queue) -> None:
+    global _PROGRESS_QUEUE
+    _PROGRESS_QUEUE = queue
+
+
+def _falsify_reporting(job: dict, key) -> FalsifierReport:
+    return falsify(**job, progress=lambda done, total: _PROGRESS_QUEUE.put((key, done, total)))
 
 
 def _common_piece(region: Region, points: np.ndarray):

@@ -96,7 +96,7 @@ def test_cache_is_keyed_by_parameters(tmp_path, poly):
     other = CarFollowingParams(h_min=6.0)
     with pytest.raises(StaleCacheError, match="h_min"):
         load_region(files[0], {"set": "car-following", "params": __import__("dataclasses").asdict(other),
-                               "tighten": 1e-6, "code": code_fingerprint(car_following.__file__)})
+                               "tighten": 1e-6, "code": code_fingerprint(car_following.__name__)})
 
 
 @pytest.mark.parametrize("params", [CarFollowingParams(), CarFollowingParams(dt=0.04, u_min=-6.0, u_max=4.0,

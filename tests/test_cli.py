@@ -177,7 +177,7 @@ def test_ego_speed_min_reaches_the_sets_and_the_env(tmp_path, capsys):
     from guardian.cli import build_parser
     from guardian.cli.common import load_library
 
-    args = build_parser().parse_args(["rcis", "build", "--ego-speed-min", "0", "--iterations", "0",
+    args = build_parser().parse_args(["rcis", "certify", "--ego-speed-min", "0", "--iterations", "0",
                                       "--cache-dir", str(tmp_path)])
     assert load_library(args).params.v_ex_bounds == (0.0, 36.0)
     with pytest.raises(SystemExit):

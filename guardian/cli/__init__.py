@@ -6,25 +6,47 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 from guardian.cli import data, falsify, itha, rollout, serve, sets
+from guardian.cli.common import Parser
+from guardian.errors import Terminated
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="guardian", description=__doc__.splitlines()[0])
+    parser = Parser(prog="guardian", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     for group in (sets, rollout, falsify, itha, data, serve):
         group.add_commands(sub)
     return parser
 
 
+def _terminate(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    if getattr(args, "samples", 1) < 1:
-        print("guardian: --samples must be at least 1", file=sys.stderr)
-        return 2
-    if getattr(args, "iterations", None) is not None and args.iterations < 0:
-        print("guardian: --iterations must be >= 0", file=sys.stderr)
-        return 2
-    return args.func(args)
+    """Run one command; Ctrl-C (SIGINT) and SIGTERM stop it with one line, exit 130 and 143.
+
+    SIGTERM raises ``Terminated`` (a ``KeyboardInterrupt``), so both signals take the same path:
+    worker pools are terminated, finished work stays (cache entries are written atomically), and
+    what a command keeps is named by its ``on_interrupt`` default.
+    """
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # --help, or a refused command line (one line on stderr, exit 2)
+        return exc.code
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminate) if in_main_thread else None
+    try:
+        return args.func(args)
+    except KeyboardInterrupt as exc:
+        name, code = ("SIGTERM", 143) if isinstance(exc, Terminated) else ("SIGINT", 130)
+        kept = getattr(args, "on_interrupt", None)
+        print(f"{args._prog}: interrupted by {name}" + (f"; {kept}" if kept else ""), file=sys.stderr, flush=True)
+        return code
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous)

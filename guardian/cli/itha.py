@@ -5,7 +5,7 @@ import sys
 import time
 from pathlib import Path
 
-from guardian.cli.common import emit, progress_bar, positive_error
+from guardian.cli.common import count, emit, json_option, output_file, progress_bar, usage_error
 
 
 def cmd_itha_highway(args) -> int:
@@ -14,10 +14,10 @@ def cmd_itha_highway(args) -> int:
     from itha.responsibility import OVERAPPROXIMATIONS
     from itha.road import HighwayParams
 
-    bad = positive_error(args, "runs", "steps")
-    if bad:
-        print(f"guardian itha highway: {bad}", file=sys.stderr)
-        return 2
+    if args.set == "closed-form" and (args.cache_dir is not None or args.rebuild):
+        return usage_error(args, "--cache-dir and --rebuild do not apply to --set closed-form (nothing is computed)")
+    if args.rerun:
+        args.rerun.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     prm = HighwayParams()
     S = make_set(prm.car_following, args.set, cache_dir=args.cache_dir, rebuild=args.rebuild,
@@ -37,8 +37,12 @@ def cmd_itha_highway(args) -> int:
     out["set"] = {"kind": S.kind, **getattr(S, "info", {})}
     out["seconds"] = round(time.perf_counter() - t0, 3)
     text = "\n".join(f"{oa:8s} distance_mean={r['distance_mean']:.1f} m unsafe_steps={r['unsafe_steps']} "
-                     f"lane_changes={r['lane_changes']} collisions={r['collisions']}"
+                     f"lane_changes={r['lane_changes']} collisions={r['collisions']} "
+                     f"infeasible_steps={r['infeasible_steps']}\n{'':8s} distances (m): "
+                     + " ".join(f"{d:g}" for d in r["distances"])
                      for oa, r in result.items() if oa in which)
+    text += "\nset: " + " ".join(f"{k}={v:.2f}" if isinstance(v, float) else f"{k}={v}" for k, v in out["set"].items())
+    text += f"\nseconds: {out['seconds']:.1f}"
     emit(out, args.json, text)
     return 0 if all(result[oa]["unsafe_steps"] == 0 for oa in which) else 1
 
@@ -46,38 +50,34 @@ def cmd_itha_highway(args) -> int:
 def cmd_itha_processors(args) -> int:
     from itha.processors import ProcessorParams, processors_experiment
 
-    bad = positive_error(args, "runs", "steps")
-    if bad:
-        print(f"guardian itha processors: {bad}", file=sys.stderr)
-        return 2
     result = processors_experiment(args.runs, args.steps, args.seed, ProcessorParams(keep_jobs=args.keep_jobs),
                                    progress=progress_bar("itha processors"))
-    text = "\n".join(f"{k:8s} accepted_jobs_mean={r['accepted_jobs_mean']:.2f} "
-                     f"violations_mean={r['violations_mean']:.2f}" for k, r in result.items())
+    text = "\n".join(f"{k:8s} " + " ".join(f"{f}={v:.2f}" if isinstance(v, float) else f"{f}={v}"
+                                          for f, v in r.items()) for k, r in result.items())
     emit(result, args.json, text)
     return 0
 
 
 def add_commands(sub) -> None:
+    out = json_option()
     itha = sub.add_parser("itha", help="inter-triggering hybrid automata experiments (Chapter 7)")
     isub = itha.add_subparsers(dest="itha_command", required=True)
-    p = isub.add_parser("highway", help="Section 7.4.1: the responsible ego on a 5-lane highway with IDM traffic")
-    p.add_argument("--runs", type=int, default=25)
-    p.add_argument("--steps", type=int, default=500)
+    p = isub.add_parser("highway", help="Section 7.4.1: the responsible ego on a 5-lane highway with IDM traffic",
+                        parents=[out])
+    p.add_argument("--runs", type=count(1), default=25)
+    p.add_argument("--steps", type=count(1), default=500)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--overapprox", choices=["trivial", "ordered", "both"], default="both")
     p.add_argument("--set", choices=["polyhedral", "closed-form"], default="polyhedral",
                    help="the car-following RCIS: computed by rcis (cached) or its closed form")
-    p.add_argument("--cache-dir", type=Path, default=None)
-    p.add_argument("--rebuild", action="store_true")
-    p.add_argument("--rerun", type=Path, default=None, help="record run 0 of each over-approximation (.rrd)")
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=cmd_itha_highway)
-    p = isub.add_parser("processors", help="Section 7.4.2: parallel processors, Table 7.1")
-    p.add_argument("--runs", type=int, default=25)
-    p.add_argument("--steps", type=int, default=50)
+    p.add_argument("--cache-dir", type=Path, default=None, help="where the polyhedral set is cached")
+    p.add_argument("--rebuild", action="store_true", help="recompute the polyhedral set")
+    p.add_argument("--rerun", type=output_file, default=None, help="record run 0 of each over-approximation (.rrd)")
+    p.set_defaults(func=cmd_itha_highway, on_interrupt="a computed set is kept in the cache")
+    p = isub.add_parser("processors", help="Section 7.4.2: parallel processors, Table 7.1", parents=[out])
+    p.add_argument("--runs", type=count(1), default=25)
+    p.add_argument("--steps", type=count(1), default=50)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--keep-jobs", type=int, default=1,
-                   help="jobs a recruiter keeps for itself (0 = (7.9) literally; see README)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--keep-jobs", type=count(0), default=1,
+                   help="jobs a recruiter keeps for itself (0 = (7.9) literally; see the docs)")
     p.set_defaults(func=cmd_itha_processors)

@@ -4,9 +4,11 @@ from __future__ import annotations
 import json
 import sys
 import time
-from pathlib import Path
 
-from guardian.cli.common import emit, load_library, progress_bar, add_library_options
+from guardian.cli.common import (emit, json_option, library_options, load_library, output_file, output_folder,
+                                 progress_bar, count)
+
+KEPT = "finished sets are kept in the cache"
 
 
 def cmd_rcis_build(args) -> int:
@@ -18,9 +20,12 @@ def cmd_rcis_build(args) -> int:
              f"pieces={s['pieces']:4d} seconds={s['seconds']:.1f}{' (cache)' if s['from_cache'] else ''}"
              for n, s in result["sets"].items()]
     lines += [f"{k}: {v}" for k, v in result["containment"].items()]
+    lines.append(f"seconds: {result['seconds']:.1f}")
     emit(result, args.json, "\n".join(lines))
-    checks = [v for k, v in result["containment"].items() if not k.startswith("witness")]
-    return 0 if all(checks) else 1
+    failed = [k for k, v in result["containment"].items() if not k.startswith("witness") and not v]
+    if failed:
+        print(f"{args._prog}: Proposition 22 does not hold for these sets: {'; '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 CERTIFY_PARTS = 2  # each set drawn as two seeded halves: the largest set keeps both workers busy
@@ -39,11 +44,14 @@ def cmd_rcis_certify(args) -> int:
                    "seed": args.seed, "window": window, "admissible": lib.admissible(name)} for name in largest_first}
     reports = falsify_all(jobs, workers=args.workers, progress=progress_bar("certify"), parts=CERTIFY_PARTS)
     result = {"sets": {name: reports[name].as_dict() for name in SET_NAMES}}
-    lines = [f"{n:17s} samples={r['samples']} inputs={r['inputs_checked']} "
-             f"counterexamples={r['counterexamples']} split={r['split_successor_sets']}"
+    lines = [f"{n:17s} " + " ".join(f"{k}={v}" for k, v in r.items() if not isinstance(v, (list, dict)))
              for n, r in result["sets"].items()]
+    lines += [f"counterexample in {n}: {c}" for n, r in result["sets"].items() for c in r["first_counterexamples"]]
     emit(result, args.json, "\n".join(lines))
-    return 0 if all(r["counterexamples"] == 0 for r in result["sets"].values()) else 1
+    bad = [n for n, r in result["sets"].items() if r["counterexamples"]]
+    if bad:
+        print(f"{args._prog}: counterexamples to invariance in {', '.join(bad)}", file=sys.stderr)
+    return 1 if bad else 0
 
 
 def cmd_rcis_export(args) -> int:
@@ -55,9 +63,10 @@ def cmd_rcis_export(args) -> int:
         print(f"guardian rcis export: {exc}", file=sys.stderr)
         return 2
     data = export_set(load_library(args), name)
-    Path(args.out).write_text(json.dumps(data))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(data))
     emit({"name": name, "pieces": len(data["pieces"]), "out": str(args.out)}, args.json,
-          f"wrote {args.out} ({len(data['pieces'])} pieces)")
+          f"wrote {name} ({len(data['pieces'])} pieces) to {args.out}")
     return 0
 
 
@@ -65,7 +74,7 @@ def cmd_rcis_plot(args) -> int:
     from intention.plots import plot_admissible, plot_slices
 
     lib = load_library(args)
-    out = Path(args.out)
+    out = args.out
     out.mkdir(parents=True, exist_ok=True)
     paths = [str(plot_slices(lib, out)), str(plot_admissible(lib, out))]
     emit({"files": paths}, args.json, "\n".join(paths))
@@ -75,24 +84,22 @@ def cmd_rcis_plot(args) -> int:
 def add_commands(sub) -> None:
     rcis = sub.add_parser("rcis", help="robust controlled invariant sets of the overtake scenario")
     rsub = rcis.add_subparsers(dest="rcis_command", required=True)
+    library, out = library_options(), json_option()
 
-    p = rsub.add_parser("build", help="build or load the RCIS library")
-    add_library_options(p)
-    p.set_defaults(func=cmd_rcis_build)
+    p = rsub.add_parser("build", help="build or load the RCIS library", parents=[library_options(1), out])
+    p.set_defaults(func=cmd_rcis_build, on_interrupt=KEPT)
 
-    p = rsub.add_parser("certify", help="falsify invariance by sampling states and disturbances")
-    add_library_options(p)
-    p.add_argument("--samples", type=int, default=100_000, help="states per set (default 100000)")
+    p = rsub.add_parser("certify", help="falsify invariance by sampling states and disturbances",
+                        parents=[library, out])
+    p.add_argument("--samples", type=count(1), default=100_000, help="states per set (default 100000)")
     p.add_argument("--seed", type=int, default=0)
-    p.set_defaults(func=cmd_rcis_certify)
+    p.set_defaults(func=cmd_rcis_certify, on_interrupt=KEPT)
 
-    p = rsub.add_parser("export", help="write one set as JSON pieces A x <= b")
+    p = rsub.add_parser("export", help="write one set as JSON pieces A x <= b", parents=[library, out])
     p.add_argument("name", help="C_bnd | C_a | C_c (or bounded_velocity | aggressive | cautious)")
-    p.add_argument("--out", type=Path, required=True)
-    add_library_options(p)
-    p.set_defaults(func=cmd_rcis_export)
+    p.add_argument("--out", type=output_file, required=True, help="the JSON file to write")
+    p.set_defaults(func=cmd_rcis_export, on_interrupt=KEPT)
 
-    p = rsub.add_parser("plot", help="PNG slices (Fig. 6.3) and admissible inputs (Fig. 6.4)")
-    p.add_argument("--out", type=Path, required=True)
-    add_library_options(p)
-    p.set_defaults(func=cmd_rcis_plot)
+    p = rsub.add_parser("plot", help="PNG slices (Fig. 6.3) and admissible inputs (Fig. 6.4)", parents=[library, out])
+    p.add_argument("--out", type=output_folder, required=True, help="the folder the PNG files are written to")
+    p.set_defaults(func=cmd_rcis_plot, on_interrupt=KEPT)

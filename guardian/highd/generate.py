@@ -12,6 +12,7 @@ sight distances, and the two meta files.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +31,7 @@ class TrafficParams:
     window: float = 420.0           # recorded stretch (HighD: about 420 m)
     upstream: float = 300.0         # simulated road before the window
     downstream: float = 200.0       # and after it
-    frame_rate: int = 25
+    frame_rate: int = 25            # Hz (HighD's); every derivative in the files uses it
     inflow: float = 0.35            # vehicles per second and lane entering upstream
     truck_share: float = 0.15
     warmup: float = 50.0            # seconds simulated before recording starts
@@ -48,6 +49,10 @@ class TrafficParams:
     noise_time: float = 1.5         # s: its correlation time
     location_id: int = 7
     speed_limit: float = -1.0
+
+    def __post_init__(self):
+        if isinstance(self.frame_rate, bool) or int(self.frame_rate) != self.frame_rate or self.frame_rate < 1:
+            raise ValueError(f"frame_rate must be a positive whole number of Hz, got {self.frame_rate!r}")
 
     def markings(self, upper: bool) -> list[float]:
         top = 6.0 if upper else 6.0 + self.lanes * self.lane_width + 2.5
@@ -240,7 +245,7 @@ def simulate_recording(recording_id: int, minutes: float, seed: int, prm: Traffi
         if progress and (f + 1) % (prm.frame_rate * 10) == 0 and f >= 0:
             progress(f + 1, frames_total)
     tracks = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=list(TRACKS))
-    tracks = _renumber(tracks)
+    tracks = _fill_kinematics(_renumber(tracks), prm.frame_rate)
     tracks = tracks.sort_values(["id", "frame"], kind="stable").reset_index(drop=True)
     meta = _tracks_meta(tracks, n_up)
     rec = _recording_meta(recording_id, prm, tracks, meta, minutes, upper_m, lower_m, seed)
@@ -297,14 +302,14 @@ def _renumber(tracks: pd.DataFrame) -> pd.DataFrame:
     mapping[0] = 0
     for c in ("id",) + tuple(c for c in TRACKS if c.endswith("Id") and c != "laneId"):
         tracks[c] = tracks[c].map(lambda i: mapping.get(int(i), 0)).astype(np.int64)
-    return _fill_kinematics(tracks)
+    return tracks
 
 
-def _fill_kinematics(tracks: pd.DataFrame) -> pd.DataFrame:
-    """yVelocity and the accelerations by central differences along each track."""
+def _fill_kinematics(tracks: pd.DataFrame, frame_rate: float) -> pd.DataFrame:
+    """yVelocity and the accelerations by central differences along each track, at ``frame_rate`` (Hz)."""
     tracks = tracks.sort_values(["id", "frame"], kind="stable").reset_index(drop=True)
     g = tracks.groupby("id", sort=False)
-    fr = 25.0
+    fr = float(frame_rate)
     tracks["yVelocity"] = np.round(g["y"].transform(lambda s: np.gradient(s.to_numpy()) * fr if len(s) > 1 else 0.0)
                                    .fillna(0.0), 2)
     tracks["xAcceleration"] = np.round(g["xVelocity"].transform(
@@ -353,7 +358,12 @@ def write_recording(out_dir: Path, recording_id: int, tables) -> list[Path]:
     paths = []
     for kind, df in zip(("recordingMeta", "tracksMeta", "tracks"), tables):
         path = out_dir / file_name(recording_id, kind)
-        df.to_csv(path, index=False)
+        tmp = path.with_name(f".{path.name}.tmp")
+        try:  # whole or absent: an interrupted run leaves no half-written file
+            df.to_csv(tmp, index=False)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
         paths.append(path)
     return paths
 

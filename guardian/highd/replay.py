@@ -25,8 +25,8 @@ import math
 import time
 import tracemalloc
 from contextlib import contextmanager
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +35,7 @@ from guardian.highd.convert import ITHAData
 from guardian.highd.cache import load_itha_view
 from guardian.highd.reader import recording_files, recording_ids
 from rcis.cache import default_cache_dir
+from rcis.parallel import process_executor
 from itha.rss import RSSParams, cut_in_safe, longitudinal_violations
 from itha.car_following import CarFollowingParams, MaximalSet, unsafe_inputs
 from itha.responsibility import EgoSupervisor
@@ -62,10 +63,25 @@ class ReplayConfig:
             raise ValueError(f"input_bounds must be 'fixed' or 'data', got {self.input_bounds!r}")
         if not 0 < self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
+        if not self.u_min < 0 < self.u_max:  # as CarFollowingParams: the ego must be able to brake
+            raise ValueError(f"need u_min < 0 < u_max, got u_min {self.u_min}, u_max {self.u_max}")
+        for name in ("h_min", "v_max"):
+            if not 0 < getattr(self, name) < math.inf:
+                raise ValueError(f"{name} must be positive and finite, got {getattr(self, name)}")
 
 
 def default_sample() -> Path:
-    return Path(__file__).resolve().parents[2] / "data" / "highd_sample"
+    """The shipped HighD-format sample, found through the installed package ``guardian.data``.
+
+    Returns
+    -------
+    Path
+        The folder holding ``01_recordingMeta.csv``, ``01_tracksMeta.csv`` and ``01_tracks.csv``.
+    """
+    folder = resources.files("guardian.data") / "highd_sample"
+    if not isinstance(folder, Path):  # e.g. a zip import: the reader needs real files
+        raise FileNotFoundError(f"the shipped sample is not a folder on disk ({folder}); install guardian unzipped")
+    return folder
 
 
 # ---- per recording (runs in workers) ------------------------------------------------------------
@@ -337,7 +353,7 @@ def _pool(workers: int, scheduler: str | None):
         with Client(scheduler) as client:
             yield client
     elif workers > 1:
-        with ProcessPoolExecutor(max_workers=workers, initializer=_parse_on_one_thread) as ex:
+        with process_executor(workers, _parse_on_one_thread) as ex:  # terminated, not drained, on Ctrl-C
             yield ex
     else:
         yield None

@@ -1,0 +1,266 @@
+"""A command line that never throws at the user.
+
+Every expected failure (an invalid value, inverted bounds, an output path that cannot be written, a
+missing file, an option that does not apply) is one line on stderr naming the option or the file,
+exit 2, before any work starts (the work functions are replaced by ones that fail the test if called).
+Ctrl-C (SIGINT to the process group, as a terminal sends it) and SIGTERM by PID stop ``rcis build``
+and ``rcis certify`` at once, with one line, keeping the cache entries already computed and leaving no
+half-written entry and no worker behind. Human output shows the figures the JSON has.
+"""
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from guardian.cli import main
+
+WORK = ["guardian.cli.sets.load_library", "guardian.highd.replay.replay", "guardian.highd.generate.generate",
+        "guardian.highd.ngsim.convert_ngsim", "itha.highway_experiment.highway_experiment",
+        "itha.processors.processors_experiment"]
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    def started(*args, **kwargs):
+        raise AssertionError("work started before the command line was checked")
+
+    for target in WORK:
+        monkeypatch.setattr(target, started)
+
+
+@pytest.fixture
+def paths(tmp_path):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    ngsim = tmp_path / "trajectories.csv"
+    ngsim.write_text("Vehicle_ID\n")
+    return {"FILE": str(a_file), "UNDER_FILE": str(a_file / "out"), "DIR": str(tmp_path),
+            "NGSIM": str(ngsim), "MISSING": str(tmp_path / "missing"), "PROC": "/proc/guardian-test/out"}
+
+
+# (argv, what the one line must name)
+REFUSED = [
+    # invalid values
+    ("rcis build --workers 0", "--workers"), ("rcis build --workers -1", "--workers"),
+    ("rcis certify --workers 0", "--workers"), ("rcis build --iterations 0", "--iterations"),
+    ("rcis build --iterations -2", "--iterations"), ("rcis certify --samples 0", "--samples"),
+    ("rcis export C_c --out {DIR}/c.json --workers -1", "--workers"),
+    ("replay --u-min 3 --u-max -3", "--u-min"), ("replay --u-min 1", "--u-min"), ("replay --u-max -1", "--u-max"),
+    ("replay --workers 0", "--workers"), ("replay --h-min -1", "--h-min"), ("replay --v-max nan", "--v-max"),
+    ("itha processors --keep-jobs -1", "--keep-jobs"), ("itha processors --runs 0", "--runs"),
+    ("itha highway --steps 0", "--steps"), ("highd generate --out {DIR} --minutes 0", "--minutes"),
+    ("highd generate --out {DIR} --recordings 0", "--recordings"),
+    ("highd generate --out {DIR} --frame-rate 0", "--frame-rate"),
+    ("data convert ngsim {NGSIM} --out {DIR} --main-lanes 0", "--main-lanes"),
+    # output paths that cannot be written
+    ("rcis export C_c --out {UNDER_FILE}", "--out"), ("rcis export C_c --out {DIR}", "--out"),
+    ("rcis export C_c --out {PROC}", "--out"), ("rcis plot --out {FILE}", "--out"),
+    ("rcis plot --out {UNDER_FILE}", "--out"), ("highd generate --out {UNDER_FILE}", "--out"),
+    ("highd generate --out {PROC}", "--out"), ("data convert ngsim {NGSIM} --out {UNDER_FILE}", "--out"),
+    ("replay --rerun {UNDER_FILE}", "--rerun"), ("replay --rerun {DIR}", "--rerun"),
+    ("itha highway --rerun {PROC}", "--rerun"),
+    # missing files
+    ("replay {MISSING}", "missing"), ("data convert ngsim {MISSING} --out {DIR}", "missing"),
+    # options that do not apply
+    ("replay --input-bounds data --u-min -3", "--u-min"), ("replay --scheduler tcp://x:1 --workers 2", "--workers"),
+    ("itha highway --set closed-form --cache-dir {DIR}", "--cache-dir"),
+    ("itha highway --set closed-form --rebuild", "--rebuild"),
+]
+
+
+@pytest.mark.parametrize("argv,names", REFUSED, ids=[a for a, _ in REFUSED])
+def test_refused_with_one_line_and_exit_2_before_any_work(argv, names, paths, no_work, capsys):
+    code = main(argv.format(**paths).split())
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and err.startswith("guardian ") and names in err, err
+    assert "Traceback" not in err
+
+
+def test_an_unwritable_folder_is_refused_for_a_user_without_rights(tmp_path, no_work, capsys):
+    if os.geteuid() == 0:
+        pytest.skip("root writes everywhere; the /proc and file-in-the-way cases cover the refusal")
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    assert main(["highd", "generate", "--out", str(locked / "out")]) == 2
+    assert "cannot write" in capsys.readouterr().err
+
+
+def test_the_console_script_prints_one_line_too(tmp_path):
+    """The installed entry point (not only main()) refuses with one line and exit 2."""
+    r = subprocess.run([sys.executable, "-m", "guardian.cli", "rcis", "build", "--workers", "0"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == "guardian rcis build: argument --workers: must be a whole number >= 1, got '0'\n"
+
+
+# ---- interrupts ---------------------------------------------------------------------------------------
+def _children(pid: int) -> set:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _interrupt(argv, cache, wait_for, how, signum):
+    env = {**os.environ, "GUARDIAN_CACHE_DIR": str(cache), "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "guardian.cli", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+    try:
+        seen = []
+        for line in proc.stderr:
+            seen.append(line)
+            if wait_for in line:
+                break
+        assert wait_for in "".join(seen), "".join(seen)
+        workers = _children(proc.pid)
+        (os.killpg if how == "group" else os.kill)(proc.pid, signum)
+        t0 = time.perf_counter()
+        out, err = proc.communicate(timeout=20)  # the work itself would take minutes
+        stopped = time.perf_counter() - t0
+        return proc.returncode, err, workers, stopped
+    finally:
+        if proc.poll() is None:  # the test failed: leave nothing running
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _entries_are_whole(cache: Path):
+    from rcis.cache import load_region
+
+    names = sorted(p.name for p in cache.iterdir())
+    assert not [n for n in names if n.endswith(".tmp") or n.startswith(".")], names
+    for path in cache.glob("*.npz"):
+        with np.load(path) as z:
+            payload = json.loads(str(z["meta"]))["payload"]
+        load_region(path, payload)  # raises on a partial or corrupt entry
+    return names
+
+
+@pytest.mark.parametrize("how,signum,code", [("group", signal.SIGINT, 130), ("pid", signal.SIGTERM, 143)],
+                         ids=["ctrl-c", "sigterm-by-pid"])
+def test_rcis_build_stops_at_once_and_keeps_the_finished_sets(tmp_path, how, signum, code):
+    cache = tmp_path / "cache"
+    rc, err, workers, stopped = _interrupt(["rcis", "build", "--iterations", "9", "--workers", "2"], cache,
+                                           "[rcis cautious] iteration 1:", how, signum)
+    name = signal.Signals(signum).name
+    assert rc == code and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == f"guardian rcis build: interrupted by {name}; finished sets are kept in the cache"
+    assert stopped < 10, stopped  # generous: measured 0.1-0.2 s; the build would go on for minutes
+    names = _entries_are_whole(cache)
+    assert any(n.startswith("bounded_velocity-") for n in names)  # finished before the signal: kept
+    assert workers and not any(_alive(w) for w in workers)  # the two workers are gone
+
+
+@pytest.mark.parametrize("how,signum,code", [("group", signal.SIGINT, 130), ("pid", signal.SIGTERM, 143)],
+                         ids=["ctrl-c", "sigterm-by-pid"])
+def test_rcis_certify_stops_at_once(library, cache_dir, tmp_path, how, signum, code):
+    rc, err, workers, stopped = _interrupt(["rcis", "certify", "--samples", "200000", "--cache-dir", str(cache_dir)],
+                                           tmp_path, "[certify", how, signum)
+    assert rc == code and "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith(f"guardian rcis certify: interrupted by {signal.Signals(signum).name}")
+    assert stopped < 10, stopped
+    assert workers and not any(_alive(w) for w in workers)
+
+
+def _fail_cautious(name, params, settings, seed, quiet):
+    """``_compute`` in the workers: the aggressive set is computed, the cautious one fails later."""
+    from intention import library
+
+    if name == "cautious":
+        time.sleep(1.0)
+        raise RuntimeError("the cautious set failed")
+    return library._COMPUTE(name, params, settings, seed, quiet)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_set_is_stored_as_soon_as_it_is_computed(tmp_path, monkeypatch, workers):
+    """If the build stops (interrupt, error) after one intention set is done, that set is in the cache."""
+    from intention import library
+    from intention.library import LibrarySettings, build_library, replace_settings
+
+    monkeypatch.setattr(library, "_COMPUTE", library._compute, raising=False)
+    monkeypatch.setattr(library, "_compute", _fail_cautious)
+    with pytest.raises(RuntimeError, match="cautious"):
+        build_library(settings=replace_settings(LibrarySettings(), intention_max_iterations=0), cache_dir=tmp_path,
+                      quiet=True, workers=workers)
+    names = _entries_are_whole(tmp_path)
+    assert [n.split("-")[0] for n in names] == ["aggressive", "bounded_velocity"]
+
+
+# ---- human output ----------------------------------------------------------------------------------------
+def _figures(x):
+    if isinstance(x, bool) or x is None:
+        return
+    if isinstance(x, (int, float)):
+        yield x
+    elif isinstance(x, dict):
+        for v in x.values():
+            yield from _figures(v)
+    elif isinstance(x, list):
+        for v in x:
+            yield from _figures(v)
+
+
+def _shown(v, text: str) -> bool:
+    if isinstance(v, int):
+        return str(v) in text
+    if not math.isfinite(v):
+        return True
+    forms = {f"{v:g}", f"{v:.1f}", f"{v:.2f}", f"{v:.3f}", f"{100 * v:.2f}", str(v)}
+    return any(f in text for f in forms)
+
+
+def _human_and_json(argv, capsys):
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert main(argv + ["--json"]) == 0
+    return text, json.loads(capsys.readouterr().out)
+
+
+def test_replay_sensitivity_without_json_prints_every_rate(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("GUARDIAN_CACHE_DIR", str(tmp_path))
+    text, data = _human_and_json(["replay", "--sensitivity", "--contexts", "--seed", "1"], capsys)
+    assert "sensitivity" in text and "RSS" in text
+    for row in data["sensitivity"]:
+        assert row["variant"] in text
+    data.pop("timings"), data.pop("seconds")  # differ between the two runs
+    missing = [v for v in _figures(data) if not _shown(v, text)]
+    assert missing == []
+
+
+@pytest.mark.parametrize("argv", [["itha", "processors", "--runs", "2", "--steps", "10"],
+                                  ["itha", "highway", "--runs", "2", "--steps", "20", "--set", "closed-form"]],
+                         ids=["processors", "highway"])
+def test_itha_human_output_shows_every_figure(argv, capsys):
+    text, data = _human_and_json(argv, capsys)
+    data.pop("seconds", None)
+    assert [v for v in _figures(data) if not _shown(v, text)] == []
+
+
+def test_rcis_build_human_output_shows_every_figure(library, cache_dir, capsys):
+    text, data = _human_and_json(["rcis", "build", "--cache-dir", str(cache_dir)], capsys)
+    data.pop("seconds")
+    for s in data["sets"].values():
+        s.pop("seconds")  # a cached set's build time is shown, but rounded to 0.1 s
+    assert [v for v in _figures(data) if not _shown(v, text)] == []
