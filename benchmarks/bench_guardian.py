@@ -12,14 +12,17 @@ import time
 
 import numpy as np
 
+import gymnasium as gym
+
+import envs  # noqa: F401 - registers guardian/Overtake-v0
 from envs.agents import make_agent
-from envs.overtake import OvertakeEnv
 from guardian.supervisor import IntentionAwareGuardian
 from intention.library import build_library
 
 
 def guardian_step_times(lib, use_intention: bool, episodes: int = 20) -> np.ndarray:
-    env = OvertakeEnv({"intention": "cautious", "initial_region": lib.region("bounded_velocity")})
+    env = gym.make("guardian/Overtake-v0", config={"intention": "cautious",
+                                                    "initial_region": lib.region("bounded_velocity")})
     guard = IntentionAwareGuardian(lib, use_intention=use_intention)
     times = []
     for ep in range(episodes):
@@ -28,11 +31,15 @@ def guardian_step_times(lib, use_intention: bool, episodes: int = 20) -> np.ndar
         guard.reset()
         done = False
         while not done:
-            u = driver(obs)
+            u = env.unwrapped.action_type.get_action(driver(obs))
+            u = [u["acceleration"], u["steering"]]
             t = time.perf_counter()
             applied, _ = guard.step(obs, u)
             times.append(time.perf_counter() - t)
-            obs, _, term, trunc, _ = env.step(applied)
+            at = env.unwrapped.action_type
+            unit = [2 * (applied[k] - r[0]) / (r[1] - r[0]) - 1 for k, r in enumerate((at.acceleration_range,
+                                                                                      at.steering_range))]
+            obs, _, term, trunc, _ = env.step(np.array(unit, dtype=np.float32))
             done = term or trunc
     return np.array(times)
 

@@ -1,9 +1,10 @@
 """Gymnasium environments of the product.
 
-``guardian/Overtake-v0``: the two-car overtake scenario of Chapter 6 (dynamics (6.3)-(6.4),
-the lead car driven by an intention model of ``intention.models``).
+``guardian/HighwayOvertake-v0``: the overtake scenario of Chapter 6 on a highway-env road, with traffic;
+``guardian/Overtake-v0``: the same scenario with the two cars alone (Section 6.5's setting: no traffic,
+the dissertation's parameters, the overtake state as the observation).
 """
 import gymnasium
 
-gymnasium.register(id="guardian/Overtake-v0", entry_point="envs.overtake:OvertakeEnv")
+gymnasium.register(id="guardian/Overtake-v0", entry_point="envs.highway_overtake:OvertakeEnv")
 gymnasium.register(id="guardian/HighwayOvertake-v0", entry_point="envs.highway_overtake:HighwayOvertakeEnv")

@@ -2,20 +2,21 @@
 
 Every agent is built as ``make_agent(name, env, rng)`` and called as ``agent(obs) -> action`` in the
 environment's own action space: a highway-env ``DiscreteMetaAction`` or ``ContinuousAction``
-(normalised to ``[-1, 1]``), or a ``Box`` in physical units (``guardian/Overtake-v0``'s ``U_e``).
+(normalised to ``[-1, 1]``), or any other ``Box`` (``random`` and ``idle`` only).
 
 * ``random``: uniform in the action space (meta: one of the five actions);
 * ``reckless``: meta: changes lanes whenever it can, alternating sides, else FASTER;
   continuous: full throttle, steering hard to one side then the other (2 s each);
 * ``idle``: IDLE, or zero acceleration and steering;
 * ``mpc``, ``bad``, ``careful``: the switched MPC drivers of Section 6.5.3 (``envs.mpc``) on the
-  overtake state (``guardian/Overtake-v0``, or ``guardian/HighwayOvertake-v0`` with continuous actions);
+  overtake state (``guardian/Overtake-v0`` or ``guardian/HighwayOvertake-v0``, continuous actions);
 * adversaries (highway-env roads), trying to make the guardian fail: ``seek`` (drive at the nearest
   car), ``brake_check`` (cut in front of a car behind, then brake hard), ``oscillate`` (flip the
   lateral command every few steps at full throttle), ``hold`` (hold a random action 1-3 s), ``trap``
   (close up on the car ahead, swerve into a neighbouring lane when a car is level or closing there).
 
-``BASELINES`` are the four drivers of Section 6.5.3's experiment (``--driver all``).
+``BASELINES`` are the four drivers of Section 6.5.3's experiment (``--agent all``); ``policy:PATH`` drives
+with a stable-baselines3 policy file (``PolicyAgent``).
 """
 from __future__ import annotations
 
@@ -94,22 +95,16 @@ class MPCAgent:
 
     def __init__(self, env, rng, style):
         base = env.unwrapped
-        self.kind = _kind(env)
-        overtake_env = self.kind == "Box" and hasattr(base, "params") and hasattr(base, "model")
-        highway_overtake = self.kind == "ContinuousAction" and hasattr(base, "overtake_state")
-        if not (overtake_env or highway_overtake):
-            raise ValueError("the MPC drivers drive guardian/Overtake-v0, or guardian/HighwayOvertake-v0 "
-                             "with --action continuous")
+        if not (_kind(env) == "ContinuousAction" and hasattr(base, "overtake_state")):
+            raise ValueError("the MPC drivers drive guardian/Overtake-v0 or guardian/HighwayOvertake-v0 "
+                             "with continuous actions")
         self.base = base
         self.driver = MPCDriver(style, base.params)
         self.driver.reset()
-        if self.kind == "ContinuousAction":
-            at = base.action_type
-            self.ranges = (np.asarray(at.acceleration_range, float), np.asarray(at.steering_range, float))
+        at = base.action_type
+        self.ranges = (np.asarray(at.acceleration_range, float), np.asarray(at.steering_range, float))
 
     def __call__(self, obs):
-        if self.kind == "Box":
-            return self.driver.act(obs)
         u = self.driver.act(self.base.overtake_state())
         out = [2 * (u[k] - r[0]) / (r[1] - r[0]) - 1 for k, r in enumerate(self.ranges)]
         return np.clip(np.array(out, dtype=np.float32), -1.0, 1.0)
@@ -273,23 +268,80 @@ BASELINES = ("mpc", "bad", "careful", "random")
 ADVERSARIES = ("seek", "brake_check", "oscillate", "hold", "trap")  # need a highway-env road
 
 
-def make_agent(name: str, env, rng: np.random.Generator) -> Agent:
+class PolicyAgent:
+    """A stable-baselines3 policy file (``policy:PATH``), acting deterministically on the observation.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        The env it drives; its action space must be the policy's.
+    rng : numpy.random.Generator
+        Unused (the policy is deterministic); kept for the registry's calling convention.
+    path : str
+        The ``.zip`` saved by stable-baselines3.
+    algo : str, optional
+        The algorithm (``DQN``, ``PPO``, ...); by default read from the file.
+    """
+
+    _loaded: dict = {}
+
+    def __init__(self, env, rng, path: str, algo: str | None = None):
+        self.model = self.load(path, algo)
+        if self.model.action_space != env.action_space:
+            raise ValueError(f"the policy {path} acts in {self.model.action_space}, the env in {env.action_space}")
+
+    @classmethod
+    def load(cls, path: str, algo: str | None = None):
+        from pathlib import Path
+
+        file = Path(path)
+        if not file.is_file():
+            raise ValueError(f"no policy file {path}")
+        key = (str(file.resolve()), file.stat().st_mtime_ns, algo)
+        if key not in cls._loaded:
+            try:
+                import stable_baselines3
+                from stable_baselines3.common.save_util import load_from_zip_file
+            except ImportError:
+                raise ValueError("a --policy needs stable-baselines3: pip install 'guardian[rl]'") from None
+            if algo is None:  # the policy class's module names the algorithm: stable_baselines3.<algo>.policies
+                data = load_from_zip_file(file, device="cpu")[0]
+                module = getattr(data.get("policy_class"), "__module__", "")
+                algo = module.split(".")[1] if module.startswith("stable_baselines3.") else None
+                if algo is None:
+                    raise ValueError(f"cannot tell the algorithm of {path}; name it (--algo DQN, PPO, ...)")
+            model_class = getattr(stable_baselines3, algo.upper(), None)
+            if model_class is None:
+                raise ValueError(f"stable-baselines3 has no algorithm {algo!r}")
+            cls._loaded[key] = model_class.load(file, device="cpu")
+        return cls._loaded[key]
+
+    def __call__(self, obs):
+        action, _ = self.model.predict(obs, deterministic=True)
+        return action.item() if getattr(action, "shape", None) == () else action
+
+
+def make_agent(name: str, env, rng: np.random.Generator, algo: str | None = None) -> Agent:
     """The agent ``name`` for ``env``.
 
     Parameters
     ----------
     name : str
-        One of ``AGENTS``.
+        One of ``AGENTS``, or ``policy:PATH`` (a stable-baselines3 policy file, ``PolicyAgent``).
     env : gymnasium.Env
         The environment it drives (wrappers allowed); its action space decides the action's form.
     rng : numpy.random.Generator
         The agent's own randomness (the rollout seeds it per episode).
+    algo : str, optional
+        The algorithm of a ``policy:PATH`` file (default: read from it).
 
     Returns
     -------
     Agent
         A callable ``agent(obs) -> action``.
     """
+    if name.startswith("policy:"):
+        return PolicyAgent(env, rng, name.partition(":")[2], algo)
     if name not in _FACTORIES:
         raise ValueError(f"unknown agent {name!r}; choose from {', '.join(AGENTS)}")
     if name in ADVERSARIES and getattr(env.unwrapped, "road", None) is None:

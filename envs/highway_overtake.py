@@ -31,7 +31,9 @@ from __future__ import annotations
 import os
 
 import numpy as np
+from gymnasium import spaces
 from highway_env.envs.common.abstract import AbstractEnv
+from highway_env.envs.common.observation import ObservationType
 from highway_env.road.lane import LineType, StraightLane
 from highway_env.road.road import Road, RoadNetwork
 
@@ -42,6 +44,17 @@ from intention.models import intention_models, safe_set
 from intention.params import OvertakeParams
 
 INTENTIONS = ("aggressive", "cautious")
+OVERTAKE_STATE = "OvertakeState"  # the observation type ``x = [v_ex, y_e, h, v_Lx]`` (float64)
+
+
+class OvertakeStateObservation(ObservationType):
+    """The overtake state ``x = [v_ex, y_e, h, v_Lx]`` of (6.3) as the observation."""
+
+    def space(self) -> spaces.Space:
+        return spaces.Box(-np.inf, np.inf, shape=(4,), dtype=np.float64)
+
+    def observe(self) -> np.ndarray:
+        return self.env.overtake_state()
 SUPPORTED_ACTIONS = ("ContinuousAction", "DiscreteMetaAction")
 
 
@@ -145,6 +158,16 @@ class HighwayOvertakeEnv(AbstractEnv):
             if not action.get("longitudinal", True) or not action.get("lateral", True):
                 raise ConfigError("HighwayOvertake: config 'action' must control both axes (longitudinal and lateral)")
 
+    def define_spaces(self) -> None:
+        """highway-env's observation and action types, and ``OvertakeState`` (the state ``x`` itself)."""
+        if self.config["observation"].get("type") != OVERTAKE_STATE:
+            return super().define_spaces()
+        kept, self.config["observation"] = self.config["observation"], {"type": "Kinematics"}
+        super().define_spaces()
+        self.config["observation"] = kept
+        self.observation_type = OvertakeStateObservation(self)
+        self.observation_space = self.observation_type.space()
+
     # ---- scene ----------------------------------------------------------------------------
     @property
     def dt(self) -> float:
@@ -246,3 +269,21 @@ class HighwayOvertakeEnv(AbstractEnv):
         if self.last_transition is not None:
             info["disturbance"] = self.last_transition["disturbance"].tolist()
         return info
+
+
+class OvertakeEnv(HighwayOvertakeEnv):
+    """``guardian/Overtake-v0``: the two cars of Section 6.5, HighwayOvertake with only what differs.
+
+    No traffic, the dissertation's parameters (Table 6.1: ``v_ex >= 16``) and the overtake state
+    ``x = [v_ex, y_e, h, v_Lx]`` as the observation; actions are highway-env's ``ContinuousAction`` on
+    ``U_e`` (or meta actions), the dynamics, disturbances, termination and reward those of
+    HighwayOvertake (the model itself, so the states are those of (6.3)-(6.7)).
+    """
+
+    @classmethod
+    def default_config(cls) -> dict:
+        config = super().default_config()
+        config.update({"observation": {"type": OVERTAKE_STATE}, "traffic_count": 0, "traffic_from_behind": 0,
+                       "params": OvertakeParams()})
+        return config
+

@@ -64,6 +64,7 @@ class BicycleGuardian:
         self.reset()
 
     def reset(self) -> None:
+        self._limits = []
         self.home = None
         self.authorized = set()   # highway lane ids being entered after a responsible entry
 
@@ -89,7 +90,16 @@ class BicycleGuardian:
 
     # ---- one simulation step -----------------------------------------------------------------------------
     def step(self, ego: EgoState, scene: Scene, proposed) -> tuple[np.ndarray, Decision]:
-        """Supervise one simulation step; ``proposed = [acceleration, steering]`` as the vehicle computed it.
+        """Supervise one simulation step.
+
+        Parameters
+        ----------
+        ego : EgoState
+            The bicycle ego now.
+        scene : Scene
+            The other cars as ITHA agents.
+        proposed : pair of floats
+            ``[acceleration, steering]`` as the vehicle computed it from the agent's action.
 
         Returns
         -------
@@ -115,6 +125,8 @@ class BicycleGuardian:
         accel = self._accelerations(ego, scene, occupied, entry, d)
         if accel:
             a = nearest_in_intervals(accel, a_prop)
+            if abs(a - a_prop) > 1e-9:
+                self._explain(ego, a_prop, a, d)
         else:
             a = max(-self.config.traffic_accel, -ego.speed / kin.dt)
             d.level, d.changed = "failsafe", "failsafe"
@@ -197,17 +209,39 @@ class BicycleGuardian:
         kin = self.kin
         itha = {self.itha_lane(i) for i in occupied}
         ego_scene = scene.with_ego_lanes(itha)
+        self._limits = [(f"self-safety towards {car.name} ahead in lane {lane}", sp)
+                        for lane, car, sp in self.traffic.leader_speeds(ego_scene)]
         speeds, why = self.traffic.self_safe_speeds(ego_scene)
         d.note(why)
         speeds = intersect_intervals(speeds, entry)
+        if d.entered:
+            self._limits.append((f"the entry into lane {d.entered[-1]} (7.5)", entry))
         progress = kin.min_progress(ego.speed, ego.heading)
         for lane in sorted(itha - {self.itha_lane(self.home)}):
             fs, why = self.traffic.follower_speeds(ego_scene, lane, ego_progress_min=progress)
             kept = intersect_intervals(speeds, fs)
             if kin.accel_for_speeds(ego.speed, kept):
                 speeds = kept
+                self._limits.append((f"keeping the follower in lane {lane} safe while entering it", fs))
             else:
                 d.level = "follower_dropped"
                 d.note(why)
                 d.note("responsibility for a follower not kept (it was responsible when the entry began)")
         return kin.accel_for_speeds(ego.speed, speeds)
+
+    def _explain(self, ego: EgoState, a_prop: float, a: float, d: Decision) -> None:
+        """Say which part limited the acceleration; a clip at the speed bound alone is a modelling clip."""
+        v_prop = ego.speed + self.kin.dt * a_prop
+        if a_prop > a and v_prop > self.config.v_max and a >= (self.config.v_max - ego.speed) / self.kin.dt - 1e-6:
+            d.clipped_to_model = True
+            d.note(f"acceleration clipped at the model's top speed {self.config.v_max:g} m/s")
+            return
+        if abs(a_prop) > self.kin.accel and abs(a) >= self.kin.accel - 1e-9:
+            d.clipped_to_model = True
+            d.note(f"acceleration clipped to the model's bound ±{self.kin.accel:g} m/s^2")
+            return
+        for name, speeds in self._limits:
+            if not any(lo <= v_prop <= hi for lo, hi in speeds):
+                bound = max((hi for lo, hi in speeds if hi < v_prop), default=None)
+                d.note(f"acceleration limited by {name}" + (f": next speed at most {bound:.2f} m/s" if bound is not None
+                                                             else ""))

@@ -35,6 +35,9 @@ class GuardianConfig:
         At reset, draw the start again (up to ``start_attempts`` times) until it lies in the guardian's
         invariant sets; otherwise such a start is only reported (``info["guardian"]["start_inside"]``).
     start_attempts : int
+    override_penalty : float
+        Subtracted from the reward of every policy step the guardian overrode for safety (a clip to
+        its modelling bounds is not one): the learner then feels the shield instead of leaning on it.
     """
 
     h_min: float = 2.0
@@ -46,6 +49,7 @@ class GuardianConfig:
     priority: tuple = (0, 1)
     resample_unsafe_start: bool = False
     start_attempts: int = 100
+    override_penalty: float = 0.0
 
     def __post_init__(self):
         if self.overapprox not in OVERAPPROXIMATIONS:
@@ -55,5 +59,7 @@ class GuardianConfig:
         for name in ("h_min", "v_max", "traffic_accel"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"GuardianConfig.{name} must be positive, got {getattr(self, name)!r}")
+        if not self.override_penalty >= 0:
+            raise ConfigError(f"GuardianConfig.override_penalty must be >= 0, got {self.override_penalty!r}")
         if self.horizon < 1 or self.start_attempts < 1:
             raise ConfigError("GuardianConfig.horizon and start_attempts must be at least 1")

@@ -59,7 +59,8 @@ class Decision:
     active_set: str = "itha"
     lead_target: str = ""             # "C" (the active set) | "follow" (F_R: behind the lead, own lane) | ""
     in_invariant_set: bool = True     # the state lies in the composed invariant set
-    admissible_acceleration: list = field(default_factory=list)
+    admissible_acceleration: list = field(default_factory=list)   # at the applied lateral input
+    admissible_lateral: list = field(default_factory=list)        # at the applied acceleration
     clipped_to_model: bool = False    # the only change is a clip to the guardian's modelling bounds
 
     @property

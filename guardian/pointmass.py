@@ -197,10 +197,15 @@ class PointMassGuardian:
         lanes = self.kin.lanes_at(x[1]) | self.kin.next_lanes(x[1], applied[1])
         d = Decision(proposed=u.tolist(), applied=applied.tolist(), changed=r.changed,
                      level="failsafe" if r.failsafe else "composed", active_set=r.active_set, lead_target="C",
-                     in_invariant_set=r.in_invariant_set, admissible_acceleration=r.throttle_range,
+                     in_invariant_set=r.in_invariant_set,
                      entered=sorted(lanes - self.kin.lanes_at(x[1])), lanes=sorted(lanes))
         if r.failsafe:
             d.note("failsafe: the state is outside the active invariant set")
+        else:
+            if r.overridden:
+                d.note(f"outside S(x) of the active set {r.active_set} (Theorem 4)")
+            q = self.lead.library.admissible(r.active_set).at(r.state)
+            d.admissible_acceleration, d.admissible_lateral = q.ranges(0, applied[1]), q.ranges(1, applied[0])
         return applied, d
 
     def _parts(self, x, scene: Scene, lanes: frozenset, view, d: Decision) -> list[_Part]:
@@ -292,6 +297,9 @@ class PointMassGuardian:
             d.changed = result.changed if level != "conflict" else ("none" if not result.overridden else "conflict")
             d.lead_target = self._target_of(parts, result.applied[1]) if level != "conflict" else "lead_as_car"
             d.admissible_acceleration = q.ranges(0, result.applied[1])
+            d.admissible_lateral = q.ranges(1, result.applied[0])
+            if level != "conflict" and result.overridden:
+                self._explain(x, u, parts, c_query, d)
             if level == "follower_dropped":
                 d.note("responsibility for a follower not kept (it was responsible when the entry began)")
             if level == "conflict":
@@ -320,6 +328,28 @@ class PointMassGuardian:
         if not lateral:
             return q
         return q.union(AdmissibleQuery.of_boxes(view.admissible, [((p.a_ex_bounds[0], a0), iv) for iv in lateral]))
+
+    def _explain(self, x, u, parts: list[_Part], c_query, d: Decision) -> None:
+        """Say which part refused the proposed input."""
+        kin, v = self.kin, float(x[0])
+        part = next((q for q in parts if q.lateral[0] <= u[1] <= q.lateral[1]), None)
+        if part is None:
+            if not d.refused:
+                d.note("lateral input limited: it would leave the lanes (6.8) allows or enter a lane unchecked")
+            return
+
+        def refuses(speeds) -> bool:
+            return not any(lo <= u[0] <= hi for lo, hi in kin.accel_for_speeds(v, speeds))
+
+        named = [("self-safety towards the traffic ahead", part.self_safe), ("the entry's responsibility (7.5)", part.entry),
+                 ("keeping the followers of the lanes being entered safe", part.followers)]
+        if part.target == "follow":
+            named.append(("F_R: self-safety behind the lead, whatever it brakes within its bounds", part.follow))
+        for name, speeds in named:
+            if refuses(speeds):
+                d.note(f"acceleration limited by {name}")
+        if part.target == "C" and not c_query.contains(np.asarray(u, float)):
+            d.note(f"outside S(x) of the active set {d.active_set} (Theorem 4)")
 
     @staticmethod
     def _target_of(parts, lateral: float) -> str:

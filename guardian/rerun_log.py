@@ -1,15 +1,5 @@
-"""rerun recordings of supervised rollouts (viewer: ``rerun FILE.rrd``).
-
-Overtake scenario (coordinates of (6.3): ``y_e`` from the right-lane centre,
-lanes 1.8 m wide, markings at y = -0.9, 0.9, 2.7):
-
-* ``road/lanes``           lane markings (static)
-* ``road/ego``, ``road/lead``  the cars as boxes, on the ``step`` timeline
-* ``inputs/{proposed,applied}/{throttle,steering}``  time series
-* ``admissible/throttle/{low,high}``, ``admissible/steering/{low,high}``  the admissible range
-  of each input given the other proposed one (as Fig. 6.5); absent when empty
-* ``intention/valid_count`` and ``intention/log``  valid intentions and their changes
-* ``events/override``      one text entry per overridden step
+"""rerun recordings (viewer: ``rerun FILE.rrd``): supervised rollouts (``GuardianRecorder``, every
+environment), the ITHA highway experiment (``HighwayRecorder``) and HighD-format recordings.
 """
 from __future__ import annotations
 
@@ -18,8 +8,6 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-CAR_HALF = (2.25, 0.4)
-LANE_MARKINGS = (-0.9, 0.9, 2.7)
 
 
 def run_blueprint(series: tuple[str, ...], road_name: str = "road"):
@@ -43,59 +31,6 @@ class _Closing:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-class OvertakeRecorder(_Closing):
-    def __init__(self, path: Path, application_id: str = "guardian-overtake"):
-        self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(path), default_blueprint=run_blueprint(("/inputs", "/admissible", "/intention")))
-        self.path = Path(path)
-        self.step_index = 0
-        self.episode = 0
-        self.ego_x = 0.0
-        self._valid = None
-        self.rec.log("road/lanes", rr.LineStrips2D([[[-50.0, y], [5000.0, y]] for y in LANE_MARKINGS]),
-                     static=True)
-
-    def start_episode(self, episode: int, x0) -> None:
-        self.episode = episode
-        self.ego_x = 0.0
-        self._valid = None
-        self.rec.set_time("step", sequence=self.step_index)
-        self.rec.log("events/episode", rr.TextLog(f"episode {episode} starts at x = {np.round(x0, 3).tolist()}"))
-
-    def log_step(self, x, dt: float, record: dict | None, proposed, applied) -> None:
-        rec = self.rec
-        rec.set_time("step", sequence=self.step_index)
-        v, y, h, _ = x
-        rec.log("road/ego", rr.Boxes2D(centers=[[self.ego_x, y]], half_sizes=[CAR_HALF], labels=["ego"]))
-        rec.log("road/lead", rr.Boxes2D(centers=[[self.ego_x + h, 0.0]], half_sizes=[CAR_HALF],
-                                        labels=["lead"]))
-        for kind, u in (("proposed", proposed), ("applied", applied)):
-            rec.log(f"inputs/{kind}/throttle", rr.Scalars([float(u[0])]))
-            rec.log(f"inputs/{kind}/steering", rr.Scalars([float(u[1])]))
-        if record is not None:
-            for axis, key in (("throttle", "throttle_range"), ("steering", "steering_range")):
-                ranges = record[key]
-                if ranges:
-                    rec.log(f"admissible/{axis}/low", rr.Scalars([min(r[0] for r in ranges)]))
-                    rec.log(f"admissible/{axis}/high", rr.Scalars([max(r[1] for r in ranges)]))
-            valid = tuple(record["valid_intentions"])
-            rec.log("intention/valid_count", rr.Scalars([float(len(valid))]))
-            if valid != self._valid:
-                rec.log("intention/log", rr.TextLog(f"valid intentions: {', '.join(valid) or 'none'}; "
-                                                    f"active set {record['active_set']}"))
-                self._valid = valid
-            if record["overridden"]:
-                rec.log("events/override", rr.TextLog(
-                    f"override ({record['changed']}): {np.round(proposed, 3).tolist()} -> "
-                    f"{np.round(applied, 3).tolist()}" + (" [outside the set]" if not record["in_invariant_set"] else "")
-                    + (" [fail-safe input]" if record["failsafe"] else "")))
-        self.ego_x += v * dt
-        self.step_index += 1
-
-    def close(self) -> None:
-        self.rec.flush()
 
 
 def read_entities(path: Path) -> dict:
@@ -288,7 +223,8 @@ class GuardianRecorder(_Closing):
     * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
       the decoded inputs of the last simulation step)
     * ``admissible/acceleration/{low,high}`` the composed admissible acceleration at the applied
-      lateral input
+      lateral input; ``admissible/steering/{low,high}`` the admissible lateral input at the applied
+      acceleration (overtake scenarios, as Fig. 6.5)
     * ``intention/valid_count`` and ``intention/log`` the lead's valid intentions and their changes;
       ``guardian/active_set`` (text)
     * ``events/override`` one entry per overridden step with the reasons; ``events/episode``
@@ -340,10 +276,11 @@ class GuardianRecorder(_Closing):
             if u:
                 rec.log(f"inputs/{kind}/throttle", rr.Scalars([float(u[0])]))
                 rec.log(f"inputs/{kind}/steering", rr.Scalars([float(u[1])]))
-        band = g.get("admissible_acceleration") or []
-        if band:
-            rec.log("admissible/acceleration/low", rr.Scalars([min(r[0] for r in band)]))
-            rec.log("admissible/acceleration/high", rr.Scalars([max(r[1] for r in band)]))
+        for axis, key in (("acceleration", "admissible_acceleration"), ("steering", "admissible_lateral")):
+            band = g.get(key) or []
+            if band:
+                rec.log(f"admissible/{axis}/low", rr.Scalars([min(r[0] for r in band)]))
+                rec.log(f"admissible/{axis}/high", rr.Scalars([max(r[1] for r in band)]))
         if g:
             rec.log("guardian/active_set", rr.TextLog(str(g.get("active_set"))))
             valid = tuple(g.get("valid_intentions", []))

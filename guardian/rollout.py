@@ -1,8 +1,9 @@
-"""Supervised rollouts: one loop for every environment and agent.
+"""Supervised rollouts: one loop, one tally, for every environment and agent.
 
 ``run_episodes`` is the loop (one seeding rule, one progress callback, observers closed on every
-exit); ``overtake_rollouts`` (Section 6.5.3, ``guardian/Overtake-v0``) and ``highway_rollouts`` (the
-one ``Guardian`` on a highway-env environment) compose it with what they count.
+exit); ``highway_rollouts`` composes it with the one ``Guardian`` and ``HighwayTally`` on any supported
+environment: ``guardian/Overtake-v0`` (Section 6.5.3's two cars), ``guardian/HighwayOvertake-v0`` and
+the ``highway-v0`` family.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ class Observer:
     def close(self) -> None: ...
 
 
-def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None) -> None:
+def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None, algo: str | None = None) -> None:
     """The rollout loop: ``episodes`` seeded episodes of ``agent`` on ``env``.
 
     Parameters
@@ -35,7 +36,8 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
     env : gymnasium.Env
         The environment, wrapped as the caller wants (guardian, video, ...). It is closed at the end.
     agent : str
-        A name of ``envs.agents.AGENTS``.
+        A name of ``envs.agents.AGENTS``, or ``policy:PATH`` (a stable-baselines3 policy file; ``algo``
+        names its algorithm when the file should not be asked).
     episodes, seed : int
         Episode i resets the env with seed ``seed + i`` and builds the agent with
         ``numpy.random.default_rng([seed, i])``: the one seeding rule of every rollout.
@@ -47,7 +49,7 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
     try:
         for ep in range(episodes):
             obs, _ = env.reset(seed=seed + ep)
-            act = make_agent(agent, env, np.random.default_rng([seed, ep]))
+            act = make_agent(agent, env, np.random.default_rng([seed, ep]), algo=algo)
             for o in observers:
                 o.start_episode(env, ep, obs)
             done = False
@@ -69,114 +71,10 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
             o.close()
 
 
-# ---- guardian/Overtake-v0 (Section 6.5.3) ---------------------------------------------------------
-class OvertakeTally(Observer):
-    """Counts of an overtake rollout; estimates the intention alongside when the guardian does not."""
-
-    def __init__(self, library, estimator, passive: bool, intention: str, recorder=None):
-        self.library, self.estimator, self.passive, self.intention = library, estimator, passive, intention
-        self.recorder = recorder
-        self.totals = {"steps": 0, "safety_violations": 0, "override_steps": 0, "failsafe_steps": 0,
-                       "wrong_identifications": 0}
-        self.identify_steps = []
-
-    def start_episode(self, env, episode, obs) -> None:
-        if self.passive:
-            self.estimator.reset()
-        if self.recorder:
-            self.recorder.start_episode(episode, obs)
-
-    def before_step(self, env, obs, action) -> None:
-        self.prev = obs
-
-    def after_step(self, env, obs, action, info) -> None:
-        record = info.get("guardian")
-        applied = np.array(record["applied"]) if record else action
-        if self.passive:
-            self.estimator.update(self.prev, applied, obs)
-        t = self.totals
-        t["steps"] += 1
-        t["safety_violations"] += int(info["unsafe"])
-        if record:
-            t["override_steps"] += int(record["overridden"])
-            t["failsafe_steps"] += int(record["failsafe"])
-        if self.recorder:
-            self.recorder.log_step(self.prev, self.library.params.dt, record, action, applied)
-
-    def end_episode(self, env, episode) -> None:
-        if self.estimator.identified_at is not None:
-            self.identify_steps.append(self.estimator.identified_at)
-            self.totals["wrong_identifications"] += int(self.estimator.valid != [self.intention])
-
-    def close(self) -> None:
-        if self.recorder:
-            self.recorder.close()
-
-
-def overtake_rollouts(library, intention: str, driver: str, episodes: int, seed: int,
-                      guardian: bool = True, use_intention: bool = True, disturbance: str = "random",
-                      max_steps: int = 300, horizon: int = 10, rerun_path=None, progress=None) -> dict:
-    """Seeded episodes of one driver on ``guardian/Overtake-v0``, with or without the guardian.
-
-    Parameters
-    ----------
-    library : intention.library.OvertakeLibrary
-        The sets; initial states are drawn inside ``C_bnd`` (Theorem 4's assumption).
-    intention : str
-        The lead's intention, ``aggressive`` or ``cautious``.
-    driver : str
-        A name of ``envs.agents.AGENTS``.
-    episodes, seed : int
-        Seeded as ``run_episodes`` says.
-    guardian, use_intention : bool
-        Supervise; and let the guardian use the estimated intention (else it is pinned to ``C_bnd``).
-    disturbance : str
-        ``random`` or ``adversarial``.
-    max_steps, horizon : int
-        Steps per episode; the estimator's horizon N.
-    rerun_path : path, optional
-        Write a rerun recording there.
-    progress : callable, optional
-        ``progress(done, total)`` after each episode.
-
-    Returns
-    -------
-    dict
-        ``episodes, intention, driver, disturbance, guardian, intention_aware, steps, safety_violations,
-        override_steps, failsafe_steps, wrong_identifications, mean_steps_to_identify_intention,
-        identified_fraction, seconds``. The estimator statistics come from the guardian's estimator,
-        or from a passive one when the guardian does not estimate (so the modes are comparable).
-    """
-    from envs.overtake import OvertakeEnv
-    from envs.wrappers import OvertakeGuardianWrapper
-    from guardian.supervisor import IntentionAwareGuardian
-    from intention.estimator import IntentionEstimator
-
-    env = OvertakeEnv({"intention": intention, "disturbance": disturbance, "max_steps": max_steps,
-                       "initial_region": library.region("bounded_velocity"), "params": library.params})
-    guard = IntentionAwareGuardian(library, use_intention=use_intention, horizon=horizon) if guardian else None
-    if guard is not None:
-        env = OvertakeGuardianWrapper(env, guard)
-    passive = not (guard is not None and use_intention)  # estimate alongside, for the statistics
-    estimator = IntentionEstimator({n: library.models[n] for n in ("aggressive", "cautious")},
-                                   horizon=horizon) if passive else guard.estimator
-    recorder = None
-    if rerun_path is not None:
-        from guardian.rerun_log import OvertakeRecorder
-        recorder = OvertakeRecorder(rerun_path)
-    tally = OvertakeTally(library, estimator, passive, intention, recorder)
-    t0 = time.perf_counter()
-    run_episodes(env, driver, episodes, seed, [tally], progress)
-    ident = tally.identify_steps
-    return {"episodes": episodes, "intention": intention, "driver": driver, "disturbance": disturbance,
-            "guardian": guardian, "intention_aware": guardian and use_intention, **tally.totals,
-            "mean_steps_to_identify_intention": float(np.mean(ident)) if ident else None,
-            "identified_fraction": len(ident) / episodes if episodes else 0.0,
-            "seconds": round(time.perf_counter() - t0, 3)}
-
-
-# ---- highway-env environments (guardian/HighwayOvertake-v0, the highway-v0 family) -----------------
+# ---- highway-env environments (guardian/Overtake-v0, guardian/HighwayOvertake-v0, the highway-v0 family) ----
 OVERTAKE_ENV = "guardian/HighwayOvertake-v0"
+TWO_CARS_ENV = "guardian/Overtake-v0"
+OVERTAKE_ENVS = (TWO_CARS_ENV, OVERTAKE_ENV)
 ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "ContinuousAction"}}
 
 
@@ -187,11 +85,11 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
     On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption).
     """
     config = dict(extra or {})
-    if env_id == OVERTAKE_ENV:
+    if env_id in OVERTAKE_ENVS:
         from envs.highway_overtake import HighwayOvertakeEnv
 
         config.update({"intention": intention or "cautious", "disturbance": disturbance})
-        if traffic is not None:
+        if traffic is not None and env_id == OVERTAKE_ENV:
             config["traffic_count"] = traffic
             config["traffic_from_behind"] = min(HighwayOvertakeEnv.default_config()["traffic_from_behind"], traffic)
         if library is not None:
@@ -211,15 +109,16 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
                      guardian: bool = True, library=None, intention: str | None = None,
                      disturbance: str = "random", traffic: int | None = None, use_intention: bool = True,
                      env_config: dict | None = None, guardian_config=None, safe_start: bool = False,
-                     progress=None, rerun_path=None, video_dir=None) -> dict:
+                     horizon: int = 10, progress=None, rerun_path=None, video_dir=None,
+                     policy_algo: str | None = None) -> dict:
     """Seeded episodes of one agent on a highway-env environment, with or without the ``Guardian``.
 
     Parameters
     ----------
     env_id : str
-        ``guardian/HighwayOvertake-v0`` or a highway-env id (``highway-v0``, ...).
+        ``guardian/Overtake-v0``, ``guardian/HighwayOvertake-v0`` or a highway-env id (``highway-v0``, ...).
     agent : str
-        A name of ``envs.agents.AGENTS``.
+        A name of ``envs.agents.AGENTS``, or ``policy:PATH`` (a stable-baselines3 policy file).
     episodes, seed : int
         Seeded as ``run_episodes`` says.
     action : str, optional
@@ -234,10 +133,14 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         Extra env config; the ``GuardianConfig``.
     safe_start : bool
         Draw each start again until it lies in the guardian's invariant sets (guarded runs only).
+    horizon : int
+        The intention estimator's window N (overtake scenarios; the guardian's and the tally's).
     progress : callable, optional
         ``progress(done, total)`` after each episode.
     rerun_path, video_dir : path, optional
         Write a rerun recording; write each episode as MP4 into this folder.
+    policy_algo : str, optional
+        The algorithm of a ``policy:PATH`` agent (default: read from the file).
 
     Returns
     -------
@@ -251,11 +154,11 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     import highway_env  # noqa: F401 - registers the highway-env environments
     from guardian.wrapper import Guardian, GuardianConfig
 
-    overtake = env_id == OVERTAKE_ENV
+    overtake = env_id in OVERTAKE_ENVS
     config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config)
     env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
     if guardian:
-        gcfg = guardian_config or GuardianConfig(use_intention=use_intention)
+        gcfg = guardian_config or GuardianConfig(use_intention=use_intention, horizon=horizon)
         if safe_start:
             import dataclasses
 
@@ -268,14 +171,14 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     if rerun_path is not None:
         from guardian.rerun_log import GuardianRecorder
         recorder = GuardianRecorder(rerun_path)
-    tally = HighwayTally(env, overtake, guardian, recorder, library)
-    run_episodes(env, agent, episodes, seed, [tally], progress)
+    tally = HighwayTally(env, overtake, guardian, recorder, library, horizon)
+    run_episodes(env, agent, episodes, seed, [tally], progress, algo=policy_algo)
     return tally.result(episodes)
 
 
 COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
           "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
-          "override_steps", "refused_lane_changes", "clipped_sim_steps", "lane_changes",
+          "override_steps", "model_clip_steps", "refused_lane_changes", "clipped_sim_steps", "lane_changes",
           "model_violation_steps", "traffic_model_violation_steps", "follower_dropped_steps", "conflict_steps",
           "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments")
 
@@ -283,9 +186,9 @@ COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_
 class HighwayTally(Observer):
     """Counts of a highway-env rollout, each by a written rule (see ``result``)."""
 
-    def __init__(self, env, overtake: bool, guardian: bool, recorder=None, library=None):
+    def __init__(self, env, overtake: bool, guardian: bool, recorder=None, library=None, horizon: int = 10):
         self.overtake, self.guardian, self.recorder = overtake, guardian, recorder
-        self.library, self._aside = library, None
+        self.library, self._aside, self.horizon = library, None, horizon
         self.estimator = None
         if overtake:
             self._watch_the_lead(env)
@@ -302,7 +205,7 @@ class HighwayTally(Observer):
 
         models = intention_models(env.unwrapped.params)
         candidates = {n: models[n] for n in ("aggressive", "cautious")}
-        self.estimator = IntentionEstimator(candidates, horizon=10)
+        self.estimator = IntentionEstimator(candidates, horizon=self.horizon)
         self.monitor = None
         if not self.guardian:  # the guardian's own monitor counts when it is there
             from guardian.config import GuardianConfig
@@ -426,8 +329,10 @@ class HighwayTally(Observer):
         * ``reversing_steps``: steps ending with a negative ego speed. ``unsupervised_steps``:
           simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
           guardian found the ego reset or replaced behind its back.
-        * ``override_steps``, ``clipped_sim_steps``, ``refused_lane_changes``, ``follower_dropped_steps``,
-          ``conflict_steps``, ``failsafe_steps``: from ``info["guardian"]``; ``lane_changes``: policy
+        * ``override_steps``: policy steps the guardian changed for safety; ``model_clip_steps``:
+          simulation steps whose only change was a clip to the model's bounds (highway-env's top speed);
+          ``clipped_sim_steps``, ``refused_lane_changes``, ``follower_dropped_steps``, ``conflict_steps``,
+          ``failsafe_steps``: from ``info["guardian"]``; ``lane_changes``: policy
           steps whose lane index changed; ``distance_mean``: mean distance along the road per episode.
         """
         totals = self.totals
@@ -479,7 +384,8 @@ def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:
     totals["lane_changes"] += int(base.vehicle.lane_index[2] != lane_before)
     if not g:
         return
-    totals["override_steps"] += int(g["overridden"])
+    totals["override_steps"] += int(g["safety_override"])
+    totals["model_clip_steps"] += g["model_clip_steps"]
     totals["refused_lane_changes"] += int(g["refused_lane_change"])
     totals["clipped_sim_steps"] += g["clipped_steps"]
     mv = g["model_violations"]

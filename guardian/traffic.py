@@ -59,19 +59,26 @@ class TrafficSupervisor:
 
     def self_safe_speeds(self, scene: Scene) -> tuple[list, str]:
         """Next ego speeds that are self-safe (7.4) against the nearest car ahead in each occupied lane."""
-        p, ego = self.params, scene.ego
         allowed = self._speed_range()
+        for lane, car, speeds in self.leader_speeds(scene):
+            allowed = intersect_intervals(allowed, speeds)
+            if not allowed:
+                return [], f"too close to {car.name or 'the car'} ahead in lane {lane}"
+        return allowed, ""
+
+    def leader_speeds(self, scene: Scene) -> list:
+        """``[(lane, car, next ego speeds self-safe towards it), ...]`` for the nearest car ahead in each
+        lane the ego occupies (the parts of ``self_safe_speeds``, to say which car limits the ego)."""
+        p, ego = self.params, scene.ego
+        out = []
         for lane in sorted(ego.lanes):
             car = self.leader(scene, lane)
             if car is None:
                 continue
             gap = car.front - car.length - ego.front
             h_next = gap + p.dt * (min(car.speed, p.v_max) - ego.speed)
-            allowed = intersect_intervals(allowed, self.S.speed_intervals(h_next, float(p.worst_lead_speed(
-                min(car.speed, p.v_max)))))
-            if not allowed:
-                return [], f"too close to {car.name or 'the car'} ahead in lane {lane}"
-        return allowed, ""
+            out.append((lane, car, self.S.speed_intervals(h_next, float(p.worst_lead_speed(min(car.speed, p.v_max))))))
+        return out
 
     def follower_speeds(self, scene: Scene, lane: int, ego_progress_min: float | None = None) -> tuple[list, str]:
         """Next ego speeds keeping the nearest car behind in ``lane`` in its RCIS, whatever it does.

@@ -18,8 +18,11 @@ not see are counted (``unsupervised_steps``).
 
     {"proposed": [a, lateral] | "LANE_LEFT" ...,  # the agent's action (decoded for continuous agents)
      "applied": [a, lateral] | "IDLE" ...,         # what the vehicle received (last simulation step)
-     "overridden": bool, "changed": "none" | "throttle" | "steering" | "both" | "lane_change"
-                                   | "conflict" | "failsafe",
+     "applied_action": int | [float, ...],        # the policy step as an action of the env's space
+     "applied_mean": [a, lateral], "applied_range": [[lo, hi], [lo, hi]],   # over the simulation steps
+     "overridden": bool,               # any change to the agent's action
+     "safety_override": bool,          # a change for safety (not only a clip to the model's bounds)
+     "changed": "none" | "throttle" | "steering" | "both" | "lane_change" | "conflict" | "failsafe",
      "level": "composed" | "follower_dropped" | "conflict" | "failsafe",   # the worst of the step
      "reasons": [str, ...],
      "refused_lane_change": bool, "entered": [lane, ...],   # lanes begun this step (each checked, responsible)
@@ -27,14 +30,20 @@ not see are counted (``unsupervised_steps``).
      "active_set": "aggressive" | "cautious" | "bounded_velocity" | "itha",
      "valid_intentions": [str, ...], "identified": str | None,
      "in_invariant_set": bool,         # the state lay in the composed invariant set (first simulation step)
-     "sim_steps": int, "clipped_steps": int, "follower_dropped_steps": int, "conflict_steps": int,
+     "sim_steps": int, "clipped_steps": int, "model_clip_steps": int,
+     "follower_dropped_steps": int, "conflict_steps": int,
      "failsafe_steps": int, "unsupervised_steps": int, "reattached": bool,
      "model_violations": {"ego": int, "lead": int, "traffic": int},
-     "admissible_acceleration": [[lo, hi], ...]}   # at the applied lateral input, last simulation step
+     "admissible_acceleration": [[lo, hi], ...],   # at the applied lateral input, last simulation step
+     "admissible_lateral": [[lo, hi], ...]}        # at the applied acceleration (overtake scenarios)
 
-and at reset ``{"enabled", "scenario", "action", "start_inside", "start_attempts"}``.
+and at reset ``{"enabled", "scenario", "action", "start_inside", "start_attempts"}``. With
+``GuardianConfig.override_penalty``, a step with a safety override also has ``"penalty"`` (subtracted
+from the reward).
 """
 from __future__ import annotations
+
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -55,20 +64,20 @@ from guardian.sensing import bicycle_state, read_road, road_scene
 __all__ = ["Guardian", "GuardianConfig"]
 
 LANE_CHANGES = ("LANE_LEFT", "LANE_RIGHT")
-ACTION_TYPES = ("ContinuousAction", "DiscreteMetaAction")
+ACTION_TYPES = ("ContinuousAction", "DiscreteAction", "DiscreteMetaAction")
 
 
 def _action_kind(base) -> str:
+    """``DiscreteMetaAction`` or ``ContinuousAction`` (highway-env's ``DiscreteAction`` is a grid of the
+    latter; either may control one axis only, the env then holds the other at 0)."""
     kind = type(base.action_type).__name__
     if kind not in ACTION_TYPES:
         raise ConfigError(f"Guardian: config 'action.type' {kind!r} cannot be supervised; use one of {ACTION_TYPES}")
-    if kind == "ContinuousAction" and not (base.action_type.longitudinal and base.action_type.lateral):
-        raise ConfigError("Guardian: config 'action' must control both axes ('longitudinal' and 'lateral' true)")
     if kind == "DiscreteMetaAction" and list(base.action_type.actions.values()) != \
             ["LANE_LEFT", "IDLE", "LANE_RIGHT", "FASTER", "SLOWER"]:
         raise ConfigError("Guardian: config 'action' must offer all five meta actions "
                           "('longitudinal' and 'lateral' true)")
-    return kind
+    return "DiscreteMetaAction" if kind == "DiscreteMetaAction" else "ContinuousAction"
 
 
 class _Hook:
@@ -82,33 +91,42 @@ class _Hook:
         self.guardian._act(self.original, action)
 
 
-class Guardian(gym.Wrapper):
-    """Supervises the ego of ``guardian/HighwayOvertake-v0`` or a ``highway-v0``-family environment.
+class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Supervises the ego of ``guardian/Overtake-v0``, ``guardian/HighwayOvertake-v0`` or a
+    ``highway-v0``-family environment.
 
     Parameters
     ----------
     env : gymnasium.Env
         The environment (possibly wrapped); its ``unwrapped`` is a highway-env ``AbstractEnv``.
     library : intention.library.OvertakeLibrary, optional
-        The overtake RCIS library; required on ``HighwayOvertake-v0`` (the lead part), unused elsewhere.
-    config : GuardianConfig
+        The overtake RCIS library (the lead part of the overtake scenarios); by default it is loaded
+        from the set cache, or built there, for the env's parameters. Unused elsewhere.
+    config : GuardianConfig, optional
     """
 
-    def __init__(self, env: gym.Env, library=None, config: GuardianConfig = GuardianConfig()):
+    def __init__(self, env: gym.Env, library=None, config: GuardianConfig | None = None):
+        gym.utils.RecordConstructorArgs.__init__(self, library=library, config=config)
         super().__init__(env)
+        config = GuardianConfig() if config is None else config
         base = env.unwrapped
         if not isinstance(base, AbstractEnv):
             raise ConfigError(f"Guardian: {type(base).__name__} is not a highway-env environment")
+        if not isinstance(config, GuardianConfig):
+            raise ConfigError(f"Guardian: config must be a GuardianConfig, got {type(config).__name__}")
+        if getattr(env, "render_mode", None) == "rgb_array":  # SDL's offscreen driver: no display looked for
+            os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
         self.config = config
-        self.library = library
         self.scenario = "overtake" if isinstance(base, HighwayOvertakeEnv) else "highway"
         if self.scenario == "overtake":
             if library is None:
-                raise ConfigError("Guardian: HighwayOvertake needs the overtake RCIS library "
-                                  "(intention.library.build_library)")
+                from intention.library import build_library
+
+                library = build_library(params=base.params)
             if library.params != base.params:
                 raise ConfigError("Guardian: the library was computed for other OvertakeParams than the env's "
                                   "config 'params'; rebuild it with the env's parameters")
+        self.library = library
         self.kind = _action_kind(base)
         self._attached = None       # the ego vehicle the hook sits on
         self._geometry = None       # what the decision object was built for
@@ -244,7 +262,10 @@ class Guardian(gym.Wrapper):
             self._step_notes.append("the ego was reset or replaced behind the guardian's back (or before it "
                                     "wrapped the env); re-attached")
         assert "guardian" not in info
-        info["guardian"] = self._record(base, proposed, reattached, unsupervised)
+        info["guardian"] = record = self._record(base, proposed, reattached, unsupervised)
+        if self.config.override_penalty and record["safety_override"]:
+            reward -= self.config.override_penalty
+            record["penalty"] = self.config.override_penalty
         return obs, reward, terminated, truncated, info
 
     def _policy_level(self, base, action):
@@ -316,6 +337,30 @@ class Guardian(gym.Wrapper):
         return with_panel(frame, self._last_record or {"active_set": "-", "reasons": ["episode start"]}, (-a, a))
 
     # ---- info --------------------------------------------------------------------------------------
+    def _applied_action(self, base, proposed, ds, inputs):
+        """What the vehicle did over the policy step, as an action of the env's own space (so a learner
+        can relabel what it proposed): the meta action executed (a refused lane change is ``IDLE``, an
+        acceleration held below the proposal ``SLOWER``), or the mean applied input in the action's
+        normalised coordinates (a ``DiscreteAction``: the nearest of its grid)."""
+        at = base.action_type
+        if self.kind == "DiscreteMetaAction":
+            name = "IDLE" if self._refused_meta or any(d.refused for d in ds) else proposed
+            if any(d.applied[0] < d.proposed[0] - 1e-9 and not d.clipped_to_model for d in ds):
+                name = "SLOWER"
+            return int(at.actions_indexes[name])
+        if not len(ds):
+            return None
+        mean = inputs.mean(axis=0)
+        axes = [(0, at.acceleration_range)] * at.longitudinal + [(1, at.steering_range)] * at.lateral
+        unit = np.array([np.clip(2 * (mean[k] - lo) / (hi - lo) - 1, -1.0, 1.0) for k, (lo, hi) in axes])
+        if type(at).__name__ == "DiscreteAction":
+            grid = np.linspace(-1.0, 1.0, at.actions_per_axis)
+            index = 0
+            for value in unit:  # itertools.product's order: the first axis varies slowest
+                index = index * at.actions_per_axis + int(np.argmin(np.abs(grid - value)))
+            return index
+        return unit.astype(np.float32).tolist()
+
     def _record(self, base, proposed, reattached: bool, unsupervised: int) -> dict:
         ds = self._decisions
         last = ds[-1] if ds else None
@@ -343,9 +388,17 @@ class Guardian(gym.Wrapper):
             applied = last.applied
             proposed = last.proposed
         clipped = sum(d.changed != "none" for d in ds)
+        model_clips = sum(d.changed != "none" and d.clipped_to_model for d in ds)
+        safety = bool(clipped - model_clips or refused)
         lead = getattr(self.guard, "lead", None)
+        inputs = np.array([d.applied for d in ds], dtype=float).reshape(-1, 2)
         out = {"proposed": proposed, "applied": applied,
-               "overridden": bool(clipped or refused), "changed": changed, "level": LEVELS[level],
+               "applied_action": self._applied_action(base, proposed, ds, inputs),
+               "applied_mean": inputs.mean(axis=0).tolist() if len(ds) else [],
+               "applied_range": [[float(inputs[:, k].min()), float(inputs[:, k].max())] for k in range(2)]
+               if len(ds) else [],
+               "overridden": bool(clipped or refused), "safety_override": safety, "changed": changed,
+               "level": LEVELS[level],
                "reasons": reasons, "refused_lane_change": refused,
                "entered": sorted({lane for d in ds for lane in d.entered}),
                "lanes": sorted({lane for d in ds for lane in d.lanes}),
@@ -354,7 +407,8 @@ class Guardian(gym.Wrapper):
                "identified": lead.identified if lead else None,
                "in_invariant_set": bool(ds[0].in_invariant_set) if ds else True,
                "admissible_acceleration": last.admissible_acceleration if last else [],
-               "sim_steps": len(ds), "clipped_steps": clipped,
+               "admissible_lateral": last.admissible_lateral if last else [],
+               "sim_steps": len(ds), "clipped_steps": clipped, "model_clip_steps": model_clips,
                "follower_dropped_steps": sum(d.level == "follower_dropped" for d in ds),
                "conflict_steps": sum(d.level == "conflict" for d in ds),
                "failsafe_steps": sum(d.level == "failsafe" for d in ds),

@@ -39,9 +39,9 @@ def test_rcis_export_writes_the_documented_shape(library, cache_dir, tmp_path, c
 
 
 def test_rollout_json(library, cache_dir, capsys):
-    code, data = run_json(capsys, ["rollout", "--scenario", "overtake", "--intention", "aggressive",
-                                   "--driver", "bad", "--episodes", "2", "--seed", "4", "--max-steps", "60",
-                                   "--json", "--cache-dir", str(cache_dir)])
+    code, data = run_json(capsys, ["rollout", "--intention", "aggressive", "--agent", "bad", "--episodes", "2",
+                                   "--seed", "4", "--env-config", "duration=6", "--json", "--cache-dir",
+                                   str(cache_dir)])
     assert code == 0
     for key in ("episodes", "steps", "safety_violations", "override_steps",
                 "mean_steps_to_identify_intention", "identified_fraction"):
@@ -96,8 +96,14 @@ def test_rollout_highway_env_json(tmp_path, capsys):
 def test_rollout_env_errors(capsys):
     assert main(["rollout", "--env", "nope-v0"]) == 2
     assert "unknown environment 'nope-v0'" in capsys.readouterr().err
-    assert main(["rollout", "--env", "highway-v0", "--scenario", "overtake"]) == 2
-    assert "exclude" in capsys.readouterr().err
+    assert main(["rollout", "--env", "highway-v0", "--intention", "aggressive"]) == 2
+    assert "--intention apply to the overtake scenarios" in capsys.readouterr().err
+    assert main(["rollout", "--traffic", "3"]) == 2  # the two-car env has no traffic
+    assert "two cars alone" in capsys.readouterr().err
+    assert main(["rollout", "--agent", "all", "--rerun", "x.rrd"]) == 2
+    assert "--rerun records one run" in capsys.readouterr().err
+    assert main(["rollout", "--env", "highway-v0", "--algo", "DQN"]) == 2
+    assert "--algo" in capsys.readouterr().err
 
 
 def test_highd_generate_and_replay_json(tmp_path, capsys):
@@ -131,13 +137,13 @@ def test_replay_refuses_malformed_data_with_exit_2(tmp_path, capsys):
     assert "no such file or folder" in capsys.readouterr().err
 
 
-def test_rollout_highway_overtake_json_rerun_and_video(library, cache_dir, tmp_path, capsys):
+def test_rollout_highway_overtake_json_rerun_and_video(traffic_library, cache_dir, tmp_path, capsys):
     from guardian.rerun_log import read_entities, read_texts
 
     rrd, video = tmp_path / "run.rrd", tmp_path / "video"
     code, data = run_json(capsys, ["rollout", "--env", "guardian/HighwayOvertake-v0", "--intention", "aggressive",
                                    "--agent", "random", "--episodes", "1", "--seed", "2", "--traffic", "3",
-                                   "--rerun", str(rrd), "--video", str(video), "--json",
+                                   "--rerun", str(rrd), "--video", str(video), "--json", "--iterations", "3",
                                    "--cache-dir", str(cache_dir)])
     assert code == 0
     for key in ("episodes", "steps", "collisions", "ego_at_fault_collisions", "override_steps", "safety_violations",
@@ -164,7 +170,7 @@ def test_rollout_env_refuses_what_it_cannot_run(library, cache_dir, capsys):
     assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--agent", "mpc", "--action", "meta"]) == 2
     assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--traffic", "-1"]) == 2
     err = capsys.readouterr().err
-    assert "nowhere-v0" in err and "nobody" in err and "--action continuous" in err and "--traffic" in err
+    assert "nowhere-v0" in err and "nobody" in err and "continuous actions" in err and "--traffic" in err
 
 
 def test_ego_speed_min_reaches_the_sets_and_the_env(tmp_path, capsys):

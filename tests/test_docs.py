@@ -17,7 +17,10 @@ ENTRY_POINTS = [
     ("intention.estimator", "IntentionEstimator.update", True),
     ("guardian.supervisor", "IntentionAwareGuardian", False), ("guardian.supervisor", "IntentionAwareGuardian.step", True),
     ("guardian.wrapper", "Guardian", False), ("guardian.wrapper", "Guardian.step", True),
-    ("guardian.rollout", "run_episodes", False), ("guardian.rollout", "overtake_rollouts", True),
+    ("guardian.rollout", "run_episodes", False), ("guardian.falsify", "run_campaign", True),
+    ("guardian.pointmass", "PointMassGuardian", False), ("guardian.pointmass", "PointMassGuardian.step", True),
+    ("guardian.bicycle", "BicycleGuardian", False), ("guardian.bicycle", "BicycleGuardian.step", True),
+    ("guardian.judge", "FaultJudge", False),
     ("guardian.rollout", "highway_rollouts", True),
     ("guardian.highd.replay", "replay", True), ("guardian.highd.reader", "read_recording", True),
     ("guardian.highd.generate", "generate", True), ("guardian.highd.convert", "to_itha", True),
@@ -27,7 +30,7 @@ ENTRY_POINTS = [
     ("itha.highway_experiment", "highway_experiment", True), ("itha.processors", "processors_experiment", True),
     ("itha.idm", "idm_acceleration", True),
     ("envs.agents", "make_agent", True),
-    ("envs.overtake", "OvertakeEnv", False), ("envs.wrappers", "OvertakeGuardianWrapper", False),
+    ("envs.agents", "PolicyAgent", False),
 ]
 
 

@@ -1,4 +1,5 @@
-"""The intention-aware guardian, the overtake environment and the wrapper."""
+"""The two cars of Section 6.5: guardian/Overtake-v0 (HighwayOvertake with only what differs) under the
+one Guardian, whose decisions there are IntentionAwareGuardian's."""
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -6,36 +7,32 @@ from gymnasium.utils.env_checker import check_env
 
 import envs  # noqa: F401  (registers guardian/Overtake-v0)
 from envs.agents import make_agent
-from envs.overtake import OvertakeEnv
-from envs.wrappers import OvertakeGuardianWrapper
-from guardian.rollout import overtake_rollouts
+from guardian.rollout import TWO_CARS_ENV, highway_env_config, highway_rollouts
 from guardian.supervisor import FAILSAFE_INPUT, IntentionAwareGuardian
+from guardian.wrapper import Guardian
 
 
-def test_environment_passes_the_gymnasium_checker():
-    check_env(gym.make("guardian/Overtake-v0").unwrapped, skip_render_check=True)
+def _two_cars(library, intention="cautious", disturbance="random", **extra):
+    return gym.make(TWO_CARS_ENV, config=highway_env_config(TWO_CARS_ENV, None, intention, disturbance, None,
+                                                             library, extra))
 
 
-def test_environment_refuses_actions_outside_the_bounds():
-    env = OvertakeEnv()
-    env.reset(seed=0)
-    with pytest.raises(ValueError, match="outside U_e"):
-        env.step([3.5, 0.0])
-    with pytest.raises(ValueError, match="finite"):
-        env.step([np.nan, 0.0])
+def test_the_two_car_env_passes_the_gymnasium_checker_and_observes_the_state():
+    env = gym.make(TWO_CARS_ENV)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    assert np.array_equal(obs, env.unwrapped.overtake_state())
+    assert env.unwrapped.config["traffic_count"] == 0 and env.unwrapped.params.v_ex_bounds == (16.0, 36.0)
     with pytest.raises(ValueError, match="unknown config"):
-        OvertakeEnv({"intentoin": "cautious"})
+        gym.make(TWO_CARS_ENV, config={"intentoin": "cautious"})
 
 
 @pytest.mark.parametrize("intention", ["aggressive", "cautious"])
 @pytest.mark.parametrize("disturbance", ["random", "adversarial"])
 def test_supervised_random_driver_never_leaves_the_invariant_set(library, intention, disturbance):
-    """Theorem 4 as a falsifier: random inputs, random or adversarial leads, 8 x 150 steps."""
-    env = OvertakeEnv({"intention": intention, "disturbance": disturbance, "max_steps": 150,
-                       "initial_region": library.region("bounded_velocity")})
-    guard = IntentionAwareGuardian(library)
-    env = OvertakeGuardianWrapper(env, guard)
-    for ep in range(8):
+    """Theorem 4 as a falsifier: random inputs, random or adversarial leads, 6 x 150 steps."""
+    env = Guardian(_two_cars(library, intention, disturbance, duration=15), library)
+    for ep in range(6):
         obs, _ = env.reset(seed=100 + ep)
         driver = make_agent("random", env, np.random.default_rng(ep))
         done = False
@@ -43,20 +40,22 @@ def test_supervised_random_driver_never_leaves_the_invariant_set(library, intent
             obs, _, terminated, truncated, info = env.step(driver(obs))
             g = info["guardian"]
             assert not info["unsafe"], obs
-            assert g["in_invariant_set"] and not g["failsafe"]
-            assert -3 <= g["applied"][0] <= 3 and -1.8 <= g["applied"][1] <= 1.8
+            assert g["in_invariant_set"] and g["level"] == "composed"
+            u = env.unwrapped.last_transition["input"]
+            assert -3 <= u[0] <= 3 and -1.8 <= u[1] <= 1.8
             assert intention in g["valid_intentions"]
+            assert g["overridden"] == bool(g["reasons"])  # every override says why
             done = terminated or truncated
 
 
-def test_without_the_guardian_the_bad_driver_crashes(library):
-    r = overtake_rollouts(library, "cautious", "bad", 6, seed=0, guardian=False)
+def test_without_the_guardian_the_bad_driver_leaves_the_safe_set(library):
+    r = highway_rollouts(TWO_CARS_ENV, "bad", 6, 0, guardian=False, library=library, intention="cautious")
     assert r["safety_violations"] >= 4
 
 
 def test_intention_awareness_overrides_less_on_the_same_seeds(library):
-    aware = overtake_rollouts(library, "cautious", "mpc", 5, seed=3)
-    pinned = overtake_rollouts(library, "cautious", "mpc", 5, seed=3, use_intention=False)
+    aware = highway_rollouts(TWO_CARS_ENV, "mpc", 5, 3, library=library, intention="cautious")
+    pinned = highway_rollouts(TWO_CARS_ENV, "mpc", 5, 3, library=library, intention="cautious", use_intention=False)
     assert aware["safety_violations"] == pinned["safety_violations"] == 0
     assert aware["override_steps"] < pinned["override_steps"]
     assert aware["identified_fraction"] == 1.0 and aware["wrong_identifications"] == 0
@@ -95,10 +94,12 @@ def test_rerun_recording_has_the_scene_and_the_overrides(library, tmp_path):
     from guardian.rerun_log import read_entities, read_texts
 
     path = tmp_path / "run.rrd"
-    r = overtake_rollouts(library, "cautious", "bad", 2, seed=0, max_steps=80, rerun_path=path)
+    r = highway_rollouts(TWO_CARS_ENV, "bad", 2, 0, library=library, intention="cautious", rerun_path=path,
+                         env_config={"duration": 8})
     counts = read_entities(path)
     for entity in ("/road/lanes", "/road/ego", "/road/lead", "/inputs/proposed/throttle",
-                   "/inputs/applied/steering", "/admissible/throttle/low", "/intention/valid_count"):
+                   "/inputs/applied/steering", "/admissible/acceleration/low", "/admissible/steering/low",
+                   "/intention/valid_count"):
         assert entity in counts, entity
     assert counts["/road/ego"] == r["steps"]
     overrides = read_texts(path, "/events/override")

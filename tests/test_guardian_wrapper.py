@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import envs  # noqa: F401
+import highway_env  # noqa: F401
 from guardian.errors import ConfigError
 from guardian.monitor import ModelMonitor
 from guardian.rollout import OVERTAKE_ENV, highway_env_config, highway_rollouts
@@ -128,15 +129,27 @@ def test_a_lane_entry_in_front_of_a_fast_follower_is_refused(traffic_library):
     assert refused
 
 
+def test_the_library_is_loaded_on_demand_for_the_envs_parameters(traffic_library, monkeypatch):
+    import intention.library
+
+    asked = []
+    monkeypatch.setattr(intention.library, "build_library",
+                        lambda params, **kw: asked.append(params) or traffic_library)
+    env = Guardian(gym.make(OVERTAKE_ENV))
+    assert asked == [env.unwrapped.params] and env.library is traffic_library
+
+
 def test_refusals_at_construction(library, traffic_library):
-    with pytest.raises(ConfigError, match="library"):
-        Guardian(gym.make(OVERTAKE_ENV))
     with pytest.raises(ConfigError, match="OvertakeParams"):
         Guardian(gym.make(OVERTAKE_ENV, config={"params": OvertakeParams.among_traffic(h_min=12.0)}), traffic_library)
     with pytest.raises(ConfigError, match="wait behind the lead"):  # v_ex >= 16 with traffic: no guarantee
         Guardian(gym.make(OVERTAKE_ENV, config={"params": library.params, "traffic_count": 2}), library)
     with pytest.raises(ConfigError, match="overapprox"):
         GuardianConfig(overapprox="both")
+    with pytest.raises(ConfigError, match="override_penalty"):
+        GuardianConfig(override_penalty=-1.0)
+    with pytest.raises(ConfigError, match="GuardianConfig"):
+        Guardian(gym.make("highway-fast-v0"), config={"h_min": 3})
 
 
 def test_the_model_monitor_catches_a_transition_the_model_does_not_cover():
