@@ -1,11 +1,21 @@
-"""Step latency of ``guardian serve`` for 1, 50 and 200 concurrent clients, over HTTP and the stream.
+"""The guardian service under realistic load: steps/s, latency, server CPU per step, memory per session.
 
-Run: python benchmarks/bench_service.py [--json] [--no-before]
+Run: python benchmarks/bench_service.py [--workers 1 2 4] [--clients 1 50 200 1000] [--repeat 3]
+                                         [--before REV] [--json]
 
-The server runs in its own process (as in use); the clients are asyncio connections in this one.
-"before" is the landed ``http.server`` service (commit a821829, read from git), measured in the
-same run; it has no stream. Targets (issue 15): a single client's step under 1 ms median over
-loopback, 0 connection errors at 200 clients.
+Trajectories are realistic: each session replays a closed loop computed beforehand with the same
+guardian (a random driver's proposals, the guardian's applied inputs, the lead following one
+intention's model with random disturbance, starting inside C_bnd), so the service identifies the
+intention and works with C_a or C_c, as in use. The server answers exactly what the local guardian
+did (the replies are checked on the last step of every session).
+
+The server runs in its own processes (``guardian serve --workers N``); the clients are one asyncio
+loop in this process sending prepared bytes (HTTP/1.1 keep-alive, one connection per session; the
+stream as raw WebSocket frames), so the client costs little of the machine's two cores. Server CPU
+is read from /proc for the server's processes (parent and workers) around the timed phase.
+
+``--before REV`` also measures a revision's service (its own API: no seq, no secret) in the same run,
+from a git worktree (1 worker: it had no others).
 """
 from __future__ import annotations
 
@@ -13,159 +23,410 @@ import argparse
 import asyncio
 import json
 import os
+import signal
+import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-BEFORE_COMMIT = "a821829"
-PLAN = [(1, 2000, None), (50, 60, None), (200, 20, None), (50, 40, 10.0), (200, 30, 10.0)]
-# (clients, steps each, control rate in Hz per client; None = flat out, each step sent as the last is answered)
+sys.path.insert(0, str(ROOT))
+STEPS_PER_CLIENT = {1: 2000, 50: 80, 200: 24, 1000: 8}
+TRAJECTORIES = 16
 
 
-def step_body(i: int) -> bytes:
-    rng = np.random.default_rng(i)
-    return json.dumps({"state": [float(rng.uniform(20, 30)), 0.0, float(rng.uniform(20, 60)), 20.0],
-                       "input": [float(rng.uniform(-3, 3)), 0.0]}).encode()
+# ---- realistic trajectories -------------------------------------------------------------------------
+
+def trajectories(library, count: int, length: int, seed: int = 0) -> list[dict]:
+    """``count`` closed loops of ``length`` steps, both intentions, from states inside C_bnd."""
+    from envs.overtake import DEFAULT_CONFIG, draw_disturbance, sample_initial_state
+    from guardian.supervisor import IntentionAwareGuardian
+
+    out = []
+    for k in range(count):
+        intention = ("cautious", "aggressive")[k % 2]
+        rng = np.random.default_rng([seed, k])
+        model = library.models[intention]
+        guardian = IntentionAwareGuardian(library)
+        x = sample_initial_state(DEFAULT_CONFIG["initial_box"], library.region("bounded_velocity"), rng, "bench")
+        steps, identified = [], 0
+        for _ in range(length):
+            u = rng.uniform([-3.0, -1.8], [3.0, 1.8])
+            applied, record = guardian.step(x, u)
+            steps.append((x.tolist(), u.tolist()))
+            identified += record.identified == intention
+            x = model.system.step(x, applied, draw_disturbance(library.params, "random", x, rng))
+        out.append({"intention": intention, "steps": steps, "identified": identified / length})
+    return out
 
 
-def start_after() -> tuple[subprocess.Popen, tuple]:
-    proc = subprocess.Popen([sys.executable, "-m", "guardian.cli", "serve", "--port", "0", "--json",
-                             "--max-sessions", "5000"], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    lines = []
-    while not lines or lines[-1] != "}":
-        lines.append(proc.stdout.readline().rstrip("\n"))
-    host, port = json.loads("\n".join(lines))["url"].removeprefix("http://").split(":")
-    return proc, (host, int(port))
+def expected_applied(library, traj: dict, n: int) -> list:
+    """The applied input of step ``n - 1`` of a trajectory (what the server must answer last)."""
+    from guardian.supervisor import IntentionAwareGuardian
+
+    g = IntentionAwareGuardian(library)
+    applied = None
+    for state, u in traj["steps"][:n]:
+        applied, _ = g.step(np.array(state), np.array(u))
+    return applied.tolist()
 
 
-def start_before(tmp: Path) -> tuple[subprocess.Popen, tuple] | None:
+# ---- the server ---------------------------------------------------------------------------------------
+
+class ServerProcess:
+    def __init__(self, workers: int, tree: Path | None = None, extra=()):
+        cmd = [sys.executable, "-m", "guardian.cli", "serve", "--port", "0", "--json", "--max-sessions", "5000",
+               "--session-ttl", "600", *extra]
+        if tree is None:
+            cmd += ["--workers", str(workers)]
+        env = {**os.environ, "PYTHONPATH": str(tree or ROOT)}
+        self.started = time.perf_counter()
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     cwd=str(tree or ROOT), env=env)
+        lines = []
+        while not lines or lines[-1] != "}":
+            line = self.proc.stdout.readline()
+            if not line:
+                raise RuntimeError("the server did not start: " + self.proc.stderr.read())
+            lines.append(line.rstrip("\n"))
+        self.info = json.loads("\n".join(lines))
+        host, port = self.info["url"].removeprefix("http://").split(":")
+        self.address = (host, int(port))
+        self.workers = workers
+
+    def pids(self) -> list[int]:
+        pid = self.proc.pid
+        try:
+            children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        except OSError:
+            children = []
+        return [pid, *map(int, children)]
+
+    def cpu_seconds(self) -> float:
+        total = 0.0
+        for pid in self.pids():
+            try:
+                fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return total
+
+    def rss_mb(self) -> float:
+        total = 0
+        for pid in self.pids():
+            try:
+                for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                    if line.startswith("VmRSS"):
+                        total += int(line.split()[1])
+            except OSError:
+                continue
+        return total / 1024
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                status, _ = asyncio.run(one_request(self.address, "GET", "/ready"))
+                if status in (200, 404):  # 404: a revision without /ready
+                    return
+            except OSError:
+                pass
+            time.sleep(0.05)
+        raise RuntimeError("the server never became ready")
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+# ---- clients: prepared bytes over asyncio protocols ----------------------------------------------------
+
+def _head(method: str, path: str, body: bytes, extra: str = "") -> bytes:
+    return (f"{method} {path} HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n{extra}"
+            f"Content-Length: {len(body)}\r\n\r\n").encode() + body
+
+
+async def one_request(address, method: str, path: str, body: bytes = b"", extra: str = "") -> tuple[int, bytes]:
+    reader, writer = await asyncio.open_connection(*address)
     try:
-        source = subprocess.run(["git", "show", f"{BEFORE_COMMIT}:guardian/service.py"], cwd=ROOT, check=True,
-                                capture_output=True, text=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    (tmp / "old_service.py").write_text(source)
-    runner = ("import sys; sys.path.insert(0, %r)\nfrom old_service import make_server\n"
-              "from intention.library import build_library\n"
-              "srv = make_server(build_library(quiet=True), '127.0.0.1', 0)\n"
-              "print(srv.server_address[1], flush=True)\nsrv.serve_forever()\n") % str(tmp)
-    proc = subprocess.Popen([sys.executable, "-c", runner], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    return proc, ("127.0.0.1", int(proc.stdout.readline()))
+        writer.write(_head(method, path, body, extra))
+        return await read_response(reader)
+    finally:
+        writer.close()
 
 
-async def _http(reader, writer, method: str, path: str, body: bytes = b"") -> tuple[int, bytes]:
-    writer.write(f"{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Length: {len(body)}\r\n\r\n".encode() + body)
+async def read_response(reader) -> tuple[int, bytes]:
     head = await reader.readuntil(b"\r\n\r\n")
-    status = int(head.split(b" ", 2)[1])
-    length = next(int(line.split(b":")[1]) for line in head.split(b"\r\n") if line.lower().startswith(b"content-length"))
+    status = int(head[9:12])
+    length = int(head.lower().split(b"content-length:")[1].split(b"\r\n")[0]) if b"content-length" in head.lower() else 0
     return status, await reader.readexactly(length)
 
 
-async def _pace(rate, t_next: float) -> float:
-    if rate is None:
-        return t_next
-    await asyncio.sleep(max(0.0, t_next - time.perf_counter()))
-    return t_next + 1.0 / rate
+def ws_frame(payload: bytes) -> bytes:
+    """A masked text frame with the all-zero mask (RFC 6455 allows it; the payload needs no XOR)."""
+    n = len(payload)
+    if n < 126:
+        header = bytes([0x81, 0x80 | n])
+    elif n < 65536:
+        header = bytes([0x81, 0x80 | 126]) + n.to_bytes(2, "big")
+    else:
+        header = bytes([0x81, 0x80 | 127]) + n.to_bytes(8, "big")
+    return header + b"\0\0\0\0" + payload
 
 
-async def http_client(address, steps: int, seed: int, lat: list, errors: list, rate=None) -> None:
-    try:
-        reader, writer = await asyncio.open_connection(*address)
-        _, body = await _http(reader, writer, "POST", "/sessions", b"{}")
-        sid = json.loads(body)["session"]
-        t_next = time.perf_counter() + (seed % 10) / (10 * rate) if rate else 0.0
-        for i in range(steps):
-            b = step_body(seed * 10_000 + i)
-            t_next = await _pace(rate, t_next)
-            t = time.perf_counter()
-            status, _ = await _http(reader, writer, "POST", f"/sessions/{sid}/step", b)
-            lat.append(time.perf_counter() - t)
-            if status != 200:
-                errors.append(f"status {status}")
-        await _http(reader, writer, "DELETE", f"/sessions/{sid}")
-        writer.close()
-    except (OSError, asyncio.IncompleteReadError) as exc:
-        errors.append(type(exc).__name__)
+class Client(asyncio.Protocol):
+    """Sends prepared requests one at a time (the next when the last is answered) and times them."""
+
+    def __init__(self, requests: list, stream: bool, lat: list, errors: list, done: asyncio.Future):
+        self.requests, self.stream, self.lat, self.errors, self.done = requests, stream, lat, errors, done
+        self.buf = bytearray()
+        self.i = 0
+        self.sent_at = 0.0
+        self.last = b""
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+
+    def go(self) -> None:
+        self.sent_at = time.perf_counter()
+        self.transport.write(self.requests[0])
+
+    def data_received(self, data: bytes) -> None:
+        self.buf += data
+        while True:
+            body = self._frame() if self.stream else self._response()
+            if body is None:
+                return
+            self.lat.append(time.perf_counter() - self.sent_at)
+            self.last = body
+            self.i += 1
+            if self.i == len(self.requests):
+                if not self.done.done():
+                    self.done.set_result(None)
+                return
+            self.sent_at = time.perf_counter()
+            self.transport.write(self.requests[self.i])
+
+    def _response(self):
+        end = self.buf.find(b"\r\n\r\n")
+        if end < 0:
+            return None
+        head = bytes(self.buf[:end]).lower()
+        length = int(head.split(b"content-length:")[1].split(b"\r\n")[0])
+        if len(self.buf) < end + 4 + length:
+            return None
+        if head[9:12] != b"200":
+            self.errors.append(int(head[9:12]))
+        body = bytes(self.buf[end + 4:end + 4 + length])
+        del self.buf[:end + 4 + length]
+        return body
+
+    def _frame(self):
+        if len(self.buf) < 2:
+            return None
+        n, at = self.buf[1] & 0x7F, 2
+        if n == 126:
+            if len(self.buf) < 4:
+                return None
+            n, at = int.from_bytes(self.buf[2:4], "big"), 4
+        elif n == 127:
+            if len(self.buf) < 10:
+                return None
+            n, at = int.from_bytes(self.buf[2:10], "big"), 10
+        if len(self.buf) < at + n:
+            return None
+        body = bytes(self.buf[at:at + n])
+        del self.buf[:at + n]
+        if b'"error"' in body[:12]:
+            self.errors.append(body[:80])
+        return body
+
+    def connection_lost(self, exc) -> None:
+        if not self.done.done():
+            self.errors.append("connection lost")
+            self.done.set_result(None)
 
 
-async def stream_client(address, steps: int, seed: int, lat: list, errors: list, rate=None) -> None:
-    from websockets.asyncio.client import connect
+async def _open(address, traj: dict, n: int, transport: str, api: str, lat, errors):
+    """Connect, create a session, prepare its requests (and the stream), return the client."""
+    loop = asyncio.get_running_loop()
+    reader, writer = await asyncio.open_connection(*address)
+    writer.write(_head("POST", "/sessions", b"{}"))
+    status, body = await read_response(reader)
+    if status != 201:
+        raise RuntimeError(f"session not created: {status} {body[:200]!r}")
+    created = json.loads(body)
+    sid, secret = created["session"], created.get("secret")
+    extra = f"Session-Secret: {secret}\r\n" if secret else ""
+    bodies = []
+    for k, (state, u) in enumerate(traj["steps"][:n]):
+        step = {"seq": k, "state": state, "input": u} if api == "new" else {"state": state, "input": u}
+        bodies.append(json.dumps(step).encode())
+    if transport == "stream":
+        writer.write((f"GET /sessions/{sid}/stream HTTP/1.1\r\nHost: localhost\r\nUpgrade: websocket\r\n"
+                      f"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                      f"Sec-WebSocket-Version: 13\r\n{extra}\r\n").encode())
+        head = await reader.readuntil(b"\r\n\r\n")
+        if head[9:12] != b"101":
+            raise RuntimeError(f"stream refused: {head[:200]!r}")
+        requests = [ws_frame(b) for b in bodies]
+    else:
+        requests = [_head("POST", f"/sessions/{sid}/step", b, extra) for b in bodies]
+    sock = writer.transport.get_extra_info("socket").dup()
+    writer.transport.pause_reading()
+    writer.transport.abort()  # keep the socket (dup), hand it to a lean protocol
+    done = loop.create_future()
+    client = Client(requests, transport == "stream", lat, errors, done)
+    await loop.connect_accepted_socket(lambda: client, sock)
+    return client, sid, secret
 
-    try:
-        reader, writer = await asyncio.open_connection(*address)
-        _, body = await _http(reader, writer, "POST", "/sessions", b"{}")
-        sid = json.loads(body)["session"]
-        async with connect(f"ws://{address[0]}:{address[1]}/sessions/{sid}/stream", max_size=2 ** 20) as ws:
-            t_next = time.perf_counter() + (seed % 10) / (10 * rate) if rate else 0.0
-            for i in range(steps):
-                b = step_body(seed * 10_000 + i).decode()
-                t_next = await _pace(rate, t_next)
-                t = time.perf_counter()
-                await ws.send(b)
-                reply = await ws.recv()
-                lat.append(time.perf_counter() - t)
-                if '"error"' in reply:
-                    errors.append("error reply")
-        await _http(reader, writer, "DELETE", f"/sessions/{sid}")
-        writer.close()
-    except (OSError, asyncio.IncompleteReadError, Exception) as exc:  # noqa: BLE001 - counted
-        errors.append(type(exc).__name__)
 
-
-def run(address, clients: int, steps: int, kind: str, rate=None) -> dict:
+async def _run_clients(address, trajs, clients: int, n: int, transport: str, api: str, server: ServerProcess):
     lat, errors = [], []
-    client = http_client if kind == "http" else stream_client
-
-    async def main():
-        await asyncio.gather(*(client(address, steps, k, lat, errors, rate) for k in range(clients)))
-
-    t0 = time.perf_counter()
-    asyncio.run(main())
+    opened = []
+    for start in range(0, clients, 100):  # connect in batches (the listen queue and our own loop)
+        opened += await asyncio.gather(*(_open(address, trajs[k % len(trajs)], n, transport, api, lat, errors)
+                                         for k in range(start, min(clients, start + 100))))
+    cpu0, t0 = server.cpu_seconds(), time.perf_counter()
+    own0 = time.process_time()
+    for client, _, _ in opened:
+        client.go()
+    await asyncio.gather(*(c.done for c, _, _ in opened))
     wall = time.perf_counter() - t0
+    cpu = server.cpu_seconds() - cpu0
+    own = time.process_time() - own0
+    lasts = [(c.last, sid, secret) for c, sid, secret in opened]
+    for c, _, _ in opened:
+        c.transport.close()
+    return lat, errors, wall, cpu, own, lasts
+
+
+def measure(server: ServerProcess, trajs, clients: int, transport: str, api: str, library=None) -> dict:
+    n = STEPS_PER_CLIENT.get(clients, max(4, 4000 // clients))
+    lat, errors, wall, cpu, own, lasts = asyncio.run(_run_clients(server.address, trajs, clients, n, transport, api,
+                                                                 server))
+    checked = mismatched = 0
+    if library is not None:  # the last answer of a few sessions against the local guardian
+        for k, (last, _, _) in enumerate(lasts[:4]):
+            want = expected_applied(library, trajs[k % len(trajs)], n)
+            checked += 1
+            mismatched += json.loads(last)["applied"] != want
     ms = np.array(lat) * 1e3
-    return {"clients": clients, "transport": kind, "rate_hz": rate, "steps": int(ms.size), "errors": len(errors),
-            "median_ms": round(float(np.median(ms)), 3) if ms.size else None,
-            "p99_ms": round(float(np.percentile(ms, 99)), 3) if ms.size else None,
-            "steps_per_s": round(ms.size / wall, 1)}
+    return {"workers": server.workers, "clients": clients, "transport": transport, "steps": int(ms.size),
+            "errors": len(errors), "steps_per_s": round(ms.size / wall, 1),
+            "p50_ms": round(float(np.percentile(ms, 50)), 3), "p99_ms": round(float(np.percentile(ms, 99)), 3),
+            "server_cpu_ms_per_step": round(cpu / ms.size * 1e3, 4), "client_cpu_ms_per_step": round(own / ms.size * 1e3, 4),
+            "checked": checked, "mismatched": mismatched, "error_sample": [str(e) for e in errors[:3]]}
 
 
-def measure(label: str, started, kinds) -> list:
-    if started is None:
-        return []
-    proc, address = started
-    out = []
+def memory(server: ServerProcess, trajs, sessions: int = 300, steps: int = 60, api: str = "new") -> dict:
+    """RSS of the server before, with ``sessions`` sessions stepped ``steps`` times, and after deleting them."""
+
+    async def run():
+        before = server.rss_mb()
+        lat, errors = [], []
+        opened = []
+        for start in range(0, sessions, 50):
+            opened += await asyncio.gather(*(_open(server.address, trajs[k % len(trajs)], steps, "http", api, lat,
+                                                   errors) for k in range(start, min(sessions, start + 50))))
+            for c, _, _ in opened[start:]:
+                c.go()
+            await asyncio.gather(*(c.done for c, _, _ in opened[start:]))
+        for c, _, _ in opened:
+            c.transport.close()
+        await asyncio.sleep(0.5)
+        during = server.rss_mb()
+        for _, sid, secret in opened:
+            extra = f"Session-Secret: {secret}\r\n" if secret else ""
+            await one_request(server.address, "DELETE", f"/sessions/{sid}", b"", extra)
+        await asyncio.sleep(0.5)
+        return before, during, server.rss_mb(), len(errors)
+
+    before, during, after, errors = asyncio.run(run())
+    return {"sessions": sessions, "steps_each": steps, "rss_before_mb": round(before, 1),
+            "rss_with_sessions_mb": round(during, 1), "rss_after_delete_mb": round(after, 1),
+            "mb_per_session": round((during - before) / sessions, 4), "errors": errors}
+
+
+def first_step(tree: Path | None, trajs, api: str) -> dict:
+    """A fresh server: seconds until its address is printed, and the first step's latency."""
+    server = ServerProcess(1, tree)
     try:
-        for clients, steps, rate in PLAN:
-            for kind in kinds:
-                r = {"server": label, **run(address, clients, steps, kind, rate)}
-                pace = f"{rate:g} Hz" if rate else "flat out"
-                print(f"{label:7s} {kind:6s} {clients:4d} clients {pace:8s}: median {r['median_ms']} ms, p99 {r['p99_ms']} ms, "
-                      f"{r['steps_per_s']} steps/s, connection errors {r['errors']}", file=sys.stderr)
-                out.append(r)
+        started = time.perf_counter() - server.started
+        lat, errors, wall, cpu, own, _ = asyncio.run(_run_clients(server.address, trajs, 1, 1, "http", api, server))
+        return {"seconds_to_listen": round(started, 2), "first_step_ms": round(lat[0] * 1e3, 2), "errors": len(errors)}
     finally:
-        proc.terminate()
-        proc.wait(30)
-    return out
+        server.stop()
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
+    ap.add_argument("--clients", type=int, nargs="+", default=[1, 50, 200, 1000])
+    ap.add_argument("--transports", nargs="+", default=["http", "stream"], choices=["http", "stream"])
+    ap.add_argument("--repeat", type=int, default=3, help="runs of each configuration (median and range reported)")
+    ap.add_argument("--before", default=None, metavar="REV", help="also measure this revision's service")
+    ap.add_argument("--no-memory", action="store_true")
     ap.add_argument("--json", action="store_true")
-    ap.add_argument("--no-before", action="store_true", help="skip the http.server service of commit a821829")
     args = ap.parse_args()
-    os.environ.setdefault("PYTHONPATH", str(ROOT))
-    results = []
-    with tempfile.TemporaryDirectory() as tmp:
-        if not args.no_before:
-            results += measure("before", start_before(Path(tmp)), ["http"])
-        results += measure("after", start_after(), ["http", "stream"])
+
+    from intention.library import build_library
+
+    library = build_library(quiet=True)
+    t = time.perf_counter()
+    trajs = trajectories(library, TRAJECTORIES, max(STEPS_PER_CLIENT.get(c, 4) for c in args.clients))
+    print(f"{len(trajs)} trajectories in {time.perf_counter() - t:.1f} s; intention identified on "
+          f"{100 * np.mean([tr['identified'] for tr in trajs]):.0f} % of steps", file=sys.stderr)
+    load = os.getloadavg()
+    result = {"load_before": load, "cpus": os.cpu_count(), "runs": [], "memory": {}, "first_step": {}}
+
+    def run_server(label, workers, tree, api):
+        server = ServerProcess(workers, tree)
+        try:
+            server.wait_ready()
+            for transport in args.transports:
+                for clients in args.clients:
+                    reps = [measure(server, trajs, clients, transport, api, library) for _ in range(args.repeat)]
+                    rates = [r["steps_per_s"] for r in reps]
+                    best = sorted(reps, key=lambda r: r["steps_per_s"])[len(reps) // 2]
+                    row = {"server": label, **best, "steps_per_s_runs": rates,
+                           "server_cpu_ms_runs": [r["server_cpu_ms_per_step"] for r in reps],
+                           "errors": sum(r["errors"] for r in reps), "mismatched": sum(r["mismatched"] for r in reps)}
+                    result["runs"].append(row)
+                    print(f"{label:6s} w={workers} {transport:6s} {clients:5d} clients: {statistics.median(rates):8.0f} "
+                          f"steps/s [{min(rates):.0f}-{max(rates):.0f}], p50 {row['p50_ms']} ms, p99 {row['p99_ms']} ms, "
+                          f"server CPU {row['server_cpu_ms_per_step']} ms/step, client CPU "
+                          f"{row['client_cpu_ms_per_step']} ms/step, errors {row['errors']}, replies checked "
+                          f"{4 * len(reps)} mismatched {row['mismatched']}   (load {os.getloadavg()[0]:.2f})",
+                          file=sys.stderr, flush=True)
+            if not args.no_memory and workers == 1:
+                result["memory"][label] = memory(server, trajs, api=api)
+                print(f"{label:6s} memory: {result['memory'][label]}", file=sys.stderr, flush=True)
+        finally:
+            server.stop()
+
+    if args.before:
+        from benchmarks.worktree import checkout
+
+        with checkout(args.before) as tree:
+            result["first_step"]["before"] = first_step(tree, trajs, "old")
+            print(f"before first step: {result['first_step']['before']}", file=sys.stderr, flush=True)
+            run_server("before", 1, tree, "old")
+    result["first_step"]["after"] = first_step(None, trajs, "new")
+    print(f"after  first step: {result['first_step']['after']}", file=sys.stderr, flush=True)
+    for workers in args.workers:
+        run_server("after", workers, None, "new")
+    result["load_after"] = os.getloadavg()
     if args.json:
-        print(json.dumps({"runs": results}, indent=2))
+        print(json.dumps(result, indent=2))
     return 0
 
 

@@ -11,7 +11,8 @@ by the server's sweeper (``Connection.tick``):
 
 With several workers, a request naming another worker's session hands the whole connection to that
 worker before its head is parsed (``workers.Router``): the socket's file descriptor and the bytes
-read so far travel over a Unix socket, and the connection then talks to that worker directly.
+read so far travel over a Unix socket, and the connection then talks to that worker directly. A
+``POST /sessions`` goes the same way to the worker with the fewest sessions.
 """
 from __future__ import annotations
 
@@ -30,8 +31,9 @@ log = logging.getLogger("guardian.service")
 class Connection(asyncio.Protocol):
     """HTTP/1.1 (keep-alive, pipelining, chunked bodies) on one socket; see the module docstring."""
 
-    def __init__(self, server, initial: bytes = b""):
+    def __init__(self, server, initial: bytes = b"", placed_by: int | None = None):
         self.server = server
+        self.placed_by = placed_by  # a new session's connection another worker sent here
         self.app = server.app
         self.limits = server.limits
         self.buf = bytearray(initial)
@@ -87,6 +89,7 @@ class Connection(asyncio.Protocol):
 
     def connection_lost(self, exc) -> None:
         self.server.connections.discard(self)
+        self._placement_done()
         if self.stream is not None:
             self.stream.detach()
         self.state = "gone"
@@ -172,12 +175,18 @@ class Connection(asyncio.Protocol):
             self.started = self.now() if self.buf else None
             self._run(head, body)
 
+    def _placement_done(self) -> None:
+        if self.placed_by is not None:
+            self.server.cluster.answered_placement(self.placed_by)
+            self.placed_by = None
+
     def _run(self, head, body: bytes) -> None:
         try:
             result = self.app.handle(head, body)
         except Exception:  # a bug must still answer in JSON, and be logged
             log.exception("guardian service: unhandled error on %s %s", head.method, head.path)
             result = api.error(500, "internal error (logged by the service)", close=True)
+        self._placement_done()  # after the session exists: the load others read never misses it
         if inspect.isawaitable(result):
             self.state = "busy"
             self.task = asyncio.ensure_future(self._finish(head, result))
@@ -292,11 +301,21 @@ class Connection(asyncio.Protocol):
         target = request_line_target(self.buf)
         if target is None:
             return False
-        sid = api.session_of(target.decode("latin-1"))
-        parsed = SessionIds.parse(sid) if sid else None
         router = self.server.router
-        if parsed is None or parsed[0] != router.node or parsed[1] == router.worker or parsed[1] >= router.workers:
-            return False
+        text = target.decode("latin-1")
+        placement = text.split("?", 1)[0] == "/sessions" and self.buf.startswith(b"POST ")
+        if placement:
+            if self.placed_by is not None:
+                return False  # placed here already: never passed on again
+            worker = router.place()  # a new session goes to the worker with the fewest
+            if worker == router.worker:
+                return False
+        else:
+            sid = api.session_of(text)
+            parsed = SessionIds.parse(sid) if sid else None
+            if parsed is None or parsed[0] != router.node or parsed[1] == router.worker or parsed[1] >= router.workers:
+                return False
+            worker = parsed[1]
         if self.transport.get_write_buffer_size():
             # an earlier answer is still being written: wait for it, or it could arrive after the next one
             self.state = "busy"
@@ -304,7 +323,7 @@ class Connection(asyncio.Protocol):
             asyncio.get_running_loop().call_later(0.002, self._retry_handoff)
             return True
         sock = self.transport.get_extra_info("socket")
-        if not router.send_connection(parsed[1], sock.fileno(), bytes(self.buf)):
+        if not router.send_connection(worker, sock.fileno(), bytes(self.buf), placement=placement):
             return False  # the worker's inbox is full or gone: serve the request here (404/410)
         self.server.connections.discard(self)
         self.server.handed_off += 1

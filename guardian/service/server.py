@@ -168,9 +168,11 @@ class Server:
     def now(self) -> float:
         return self._now
 
-    def adopt(self, sock: socket.socket, initial: bytes) -> None:
-        """Serve a connection another worker handed over (with the bytes it had read)."""
-        asyncio.ensure_future(self._loop.connect_accepted_socket(lambda: Connection(self, initial), sock))
+    def adopt(self, sock: socket.socket, initial: bytes, placed_by: int | None = None) -> None:
+        """Serve a connection another worker handed over (with the bytes it had read); ``placed_by``: the
+        worker that sent a new session's request here (told when it is answered)."""
+        asyncio.ensure_future(self._loop.connect_accepted_socket(
+            lambda: Connection(self, initial, placed_by), sock))
 
     async def serve(self, sock: socket.socket) -> None:
         """Accept on ``sock`` until ``request_stop``; then shut down gracefully."""
