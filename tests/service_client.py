@@ -66,8 +66,11 @@ class Raw:
         if body is not None:
             base["content-type"] = "application/json"
         h = [(k, v) for k, v in {**base, **given}.items() if v is not None]
-        self.sock.sendall(self.conn.send(h11.Request(method=method, target=path, headers=h)))
-        self.sock.sendall(self.conn.send(h11.Data(data=data)) + self.conn.send(h11.EndOfMessage()))
+        try:
+            self.sock.sendall(self.conn.send(h11.Request(method=method, target=path, headers=h)))
+            self.sock.sendall(self.conn.send(h11.Data(data=data)) + self.conn.send(h11.EndOfMessage()))
+        except BrokenPipeError:  # the server answered and closed before reading it all: read the answer
+            pass
         return self.response()
 
     def closed(self, timeout: float = 5.0) -> bool:

@@ -26,6 +26,7 @@ from guardian.service.http import (REASONS, ChunkedReader, FramingError, find_he
 from guardian.service.sessions import SECRET_HEADER, ServiceError, SessionIds
 
 log = logging.getLogger("guardian.service")
+REFUSED_DRAIN = 1.0  # seconds a connection refused at the limit is read (and discarded) before it closes
 
 
 class Connection(asyncio.Protocol):
@@ -56,12 +57,19 @@ class Connection(asyncio.Protocol):
     def connection_made(self, transport) -> None:
         self.transport = transport
         conns = self.server.connections
-        conns.add(self)
-        if len(conns) > self.server.connection_cap:
+        if len(conns) >= self.server.connection_cap:
+            # answer at once, half-close, and drain what the client still sends for a moment (closing
+            # with unread input would reset the connection and could destroy the answer)
             self.server.refused += 1
-            self._send_and_close(503, f"connection limit {self.server.connection_cap} reached; try again later",
-                                 (("retry-after", "1"),))
+            self.server.refusing.add(self)
+            self.state, self.started = "refused", self.now()
+            resp = api.error(503, f"connection limit {self.server.connection_cap} reached; try again later",
+                             (("retry-after", "1"),), close=True)
+            transport.write(serialize(resp.status, resp.body, resp.headers, True))
+            if transport.can_write_eof():
+                transport.write_eof()
             return
+        conns.add(self)
         if self.buf:
             self._process()
 
@@ -69,7 +77,7 @@ class Connection(asyncio.Protocol):
         if self.state == "stream":
             self.stream.data_received(data)
             return
-        if self.state == "gone":
+        if self.state in ("gone", "refused"):
             return
         self.buf += data
         self.last_active = self.now()
@@ -85,10 +93,13 @@ class Connection(asyncio.Protocol):
         if self.state == "busy":  # a whole request is running: answer it, then close
             self.close_after = True
             return True
+        if self.state == "refused":
+            self.server.refusing.discard(self)
         return False  # nothing complete is pending: close (written answers are flushed first)
 
     def connection_lost(self, exc) -> None:
         self.server.connections.discard(self)
+        self.server.refusing.discard(self)
         self._placement_done()
         if self.stream is not None:
             self.stream.detach()
@@ -277,7 +288,10 @@ class Connection(asyncio.Protocol):
     # ---- timeouts (the server's sweeper calls this) ---------------------------------------------------
 
     def tick(self, now: float) -> None:
-        if self.state == "stream":
+        if self.state == "refused":
+            if now - self.started > REFUSED_DRAIN:
+                self.abort()
+        elif self.state == "stream":
             self.stream.tick(now)
         elif self.state in ("idle", "body"):
             if self.started is not None:

@@ -156,6 +156,7 @@ class Server:
         self.router = router
         self.cluster = cluster
         self.connections: set[Connection] = set()
+        self.refusing: set[Connection] = set()  # over the connection cap: answered 503, being drained
         self.tasks: set = set()
         self.connection_cap = config.limits.connection_cap()
         self.refused = 0
@@ -215,7 +216,7 @@ class Server:
         last_store_sweep = 0.0
         while True:
             self._now = now = time.monotonic()
-            for conn in list(self.connections):
+            for conn in list(self.connections) + list(self.refusing):
                 conn.tick(now)
             if now - last_store_sweep > min(self.store.ttl / 4.0, 30.0):
                 self.store.sweep()
