@@ -139,7 +139,8 @@ class _Intention:
         self.rows = None  # (lower, upper) of E w over W per row, when every column is in one row at most
         if np.all(np.count_nonzero(self.E, axis=0) <= 1):
             lo_terms, hi_terms = self.E * self.lo, self.E * self.hi
-            self.rows = (np.minimum(lo_terms, hi_terms).sum(axis=1), np.maximum(lo_terms, hi_terms).sum(axis=1))
+            lower, upper = np.minimum(lo_terms, hi_terms).sum(axis=1), np.maximum(lo_terms, hi_terms).sum(axis=1)
+            self.rows = list(zip(lower.tolist(), upper.tolist()))
 
     def residual(self, x: np.ndarray, u: np.ndarray, x_next: np.ndarray) -> np.ndarray:
         piece = self.pieces[self.system.piece_index(x)]
@@ -147,8 +148,10 @@ class _Intention:
 
     def excess(self, r: np.ndarray) -> float:
         """How far ``[r - tol, r + tol]`` lies outside the rows' intervals (<= 0: feasible exactly)."""
-        lower, upper = self.rows
-        return float(max(np.max(lower - (r + self.tol)), np.max((r - self.tol) - upper)))
+        tol, worst = self.tol, -np.inf
+        for value, (lower, upper) in zip(r.tolist(), self.rows):  # four rows: plain floats beat numpy here
+            worst = max(worst, lower - (value + tol), (value - tol) - upper)
+        return worst
 
 
 @dataclass
