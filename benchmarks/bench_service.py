@@ -16,6 +16,10 @@ is read from /proc for the server's processes (parent and workers) around the ti
 
 ``--before REV`` also measures a revision's service (its own API: no seq, no secret) in the same run,
 from a git worktree (1 worker: it had no others).
+
+``--nginx`` runs docs/service.md's load-balancer setup on loopback (needs ``nginx`` on PATH): two nodes,
+``--node a --workers 2`` and ``--node b --workers 2``, behind nginx with the documented ``map``, and
+measures HTTP and the stream through it (every session's last answer checked; sessions on both nodes).
 """
 from __future__ import annotations
 
@@ -367,6 +371,100 @@ def first_step(tree: Path | None, trajs, api: str) -> dict:
         server.stop()
 
 
+NGINX_CONF = """
+worker_processes 1;
+pid {tmp}/nginx.pid;
+error_log {tmp}/error.log warn;
+events {{ worker_connections 4096; }}
+http {{
+    access_log off;
+    keepalive_requests 100000;  # nginx closes a client's keep-alive connection after 1,000 requests by default
+    client_body_temp_path {tmp}/body; proxy_temp_path {tmp}/proxy;
+    fastcgi_temp_path {tmp}/fcgi; uwsgi_temp_path {tmp}/uwsgi; scgi_temp_path {tmp}/scgi;
+    map $uri $guardian_node {{
+        ~^/sessions/(?<node>[a-z0-9-]+)\\.   $node;
+        default                              any;
+    }}
+    map $http_upgrade $connection_upgrade {{ default upgrade; "" ""; }}
+    upstream guardian_a   {{ server {a}; keepalive 64; }}
+    upstream guardian_b   {{ server {b}; keepalive 64; }}
+    upstream guardian_any {{ server {a}; server {b}; keepalive 64; }}
+    server {{
+        listen 127.0.0.1:{port};
+        location / {{
+            proxy_pass http://guardian_$guardian_node;
+            proxy_http_version 1.1;
+            proxy_set_header Host localhost;
+            proxy_set_header Upgrade $http_upgrade;
+            proxy_set_header Connection $connection_upgrade;
+            proxy_read_timeout 120s;
+        }}
+    }}
+}}
+"""
+
+
+def behind_nginx(trajs, library, clients=(1, 50, 200), repeat: int = 1, transports=("http", "stream")) -> list:
+    """Two nodes of 2 workers behind nginx (docs/service.md), measured through it."""
+    import shutil
+    import socket
+    import tempfile
+
+    if shutil.which("nginx") is None:
+        raise SystemExit("--nginx needs nginx on PATH (apt-get install nginx-light)")
+    nodes = {name: ServerProcess(2, extra=("--node", name)) for name in ("a", "b")}
+    for node in nodes.values():
+        node.workers = 4  # both nodes' CPU is read below
+        node.wait_ready()
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        conf = Path(tmp) / "nginx.conf"
+        conf.write_text(NGINX_CONF.format(tmp=tmp, port=port, a="%s:%d" % nodes["a"].address,
+                                          b="%s:%d" % nodes["b"].address))
+        nginx = subprocess.Popen(["nginx", "-p", tmp, "-c", str(conf), "-g", "daemon off;"],
+                                 stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 10
+            while True:
+                try:
+                    socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                    break
+                except OSError:
+                    if time.monotonic() > deadline:
+                        raise RuntimeError("nginx did not start: " + nginx.stderr.read())
+                    time.sleep(0.05)
+
+            class Both:
+                address, workers = ("127.0.0.1", port), 4
+
+                def cpu_seconds(self):
+                    return sum(n.cpu_seconds() for n in nodes.values())
+
+            for transport in transports:
+                for n in clients:
+                    reps = [measure(Both(), trajs, n, transport, "new", library) for _ in range(repeat)]
+                    for r in reps:
+                        r["server"] = "2 nodes x 2 workers behind nginx"
+                        rows.append(r)
+                        print(f"nginx  {transport:6s} {n:5d} clients: {r['steps_per_s']:8.0f} steps/s, p50 "
+                              f"{r['p50_ms']} ms, p99 {r['p99_ms']} ms, errors {r['errors']}, replies checked "
+                              f"{r['checked']} mismatched {r['mismatched']} {r['error_sample']}", file=sys.stderr, flush=True)
+            health = [asyncio.run(one_request(n.address, "GET", "/health"))[1] for n in nodes.values()]
+            created = [json.loads(h)["created"] for h in health]
+            print(f"nginx  sessions created per node: {dict(zip(nodes, created))}", file=sys.stderr, flush=True)
+            rows.append({"server": "nginx", "sessions_created_per_node": dict(zip(nodes, created))})
+        finally:
+            nginx.terminate()
+            nginx.wait(10)
+            for node in nodes.values():
+                node.stop()
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
@@ -375,6 +473,7 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3, help="runs of each configuration (median and range reported)")
     ap.add_argument("--before", default=None, metavar="REV", help="also measure this revision's service")
     ap.add_argument("--no-memory", action="store_true")
+    ap.add_argument("--nginx", action="store_true", help="only the two-node setup behind nginx (docs/service.md)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -387,6 +486,12 @@ def main() -> int:
           f"{100 * np.mean([tr['identified'] for tr in trajs]):.0f} % of steps", file=sys.stderr)
     load = os.getloadavg()
     result = {"load_before": load, "cpus": os.cpu_count(), "runs": [], "memory": {}, "first_step": {}}
+
+    if args.nginx:
+        result["nginx"] = behind_nginx(trajs, library, tuple(args.clients), args.repeat, tuple(args.transports))
+        if args.json:
+            print(json.dumps(result, indent=2))
+        return 0
 
     def run_server(label, workers, tree, api):
         server = ServerProcess(workers, tree)
