@@ -11,6 +11,7 @@ from guardian.cli.common import add_library_options, emit, load_library
 
 def cmd_serve(args) -> int:
     from guardian.service import Limits, ServiceConfig, bind, token_from_env
+    from guardian.service.server import make_server
     from guardian.service.server import ADMIN_TOKEN_ENV
 
     limits = Limits(max_body=args.max_body, read_timeout=args.read_timeout, keepalive_timeout=args.keepalive_timeout,
@@ -27,7 +28,10 @@ def cmd_serve(args) -> int:
     # the library is built with at least 2 processes when the cache is cold, whatever --workers says
     lib = load_library(argparse.Namespace(**{**vars(args), "workers": max(2, args.workers)}))
     try:
-        sock = bind(config.host, config.port, config.backlog)
+        if config.workers == 1:
+            server, sock = make_server(lib, config)  # warmed up before the first connection is accepted
+        else:
+            sock = bind(config.host, config.port, config.backlog)
     except OSError as exc:
         print(f"guardian serve: cannot listen on {config.host}:{config.port}: {exc}", file=sys.stderr)
         return 2
@@ -38,11 +42,6 @@ def cmd_serve(args) -> int:
             "session_ttl_s": config.session_ttl, "max_sessions_per_worker": config.max_sessions,
             "max_connections_per_worker": limits.connection_cap()}
     if config.workers == 1:
-        from guardian.service import Server, warm_up
-        from guardian.service.sessions import SessionIds
-
-        warm_up(lib)  # before the first connection is accepted: the first step costs what the others do
-        server = Server(lib, config, ids=SessionIds.starting_now(config.node))
         _announce(info, args, config)
 
         async def main():

@@ -13,9 +13,10 @@
 """
 from guardian.service.api import App, SessionSettings, StepRequest
 from guardian.service.limits import Limits
-from guardian.service.server import ServiceConfig, ServiceThread, Server, bind, is_loopback, token_from_env, warm_up
+from guardian.service.server import (ServiceConfig, ServiceThread, Server, bind, is_loopback, make_server,
+                                     token_from_env, warm_up)
 from guardian.service.sessions import ModelDomain, ServiceError, SessionIds, SessionStore
 
 __all__ = ["App", "Limits", "ModelDomain", "ServiceConfig", "ServiceError", "ServiceThread", "Server",
-           "SessionIds", "SessionSettings", "SessionStore", "StepRequest", "bind", "is_loopback",
+           "SessionIds", "SessionSettings", "SessionStore", "StepRequest", "bind", "is_loopback", "make_server",
            "token_from_env", "warm_up"]

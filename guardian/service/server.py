@@ -226,15 +226,35 @@ class Server:
             await asyncio.sleep(period)
 
 
+def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = True) -> tuple[Server, socket.socket]:
+    """One worker of the guardian service and its bound socket (``--workers N`` is ``workers.serve_workers``).
+
+    Parameters
+    ----------
+    library : intention.library.OvertakeLibrary
+        The sets every session's guardian uses.
+    config : ServiceConfig
+        Address, tokens, origins, session TTL and cap, node name and the limits; checked first.
+    warm : bool
+        Warm the library up first (``warm_up``), so that the first step costs what the others do.
+
+    Returns
+    -------
+    (Server, socket.socket)
+        Run it with ``asyncio.run(server.serve(sock))``; ``server.request_stop()`` stops it gracefully.
+    """
+    config.check()
+    if warm:
+        warm_up(library)
+    server = Server(library, config, ids=SessionIds.starting_now(config.node))
+    return server, bind(config.host, config.port, config.backlog)
+
+
 class ServiceThread:
     """One worker on a background thread (tests, benchmarks): ``with ServiceThread(lib) as svc: svc.url``."""
 
     def __init__(self, library, config: ServiceConfig = ServiceConfig(port=0), warm: bool = True):
-        config.check()
-        if warm:
-            warm_up(library)
-        self.server = Server(library, config)
-        self.sock = bind(config.host, config.port, config.backlog)
+        self.server, self.sock = make_server(library, config, warm)
         self.address = self.sock.getsockname()[:2]
         self.url = f"http://{self.address[0]}:{self.address[1]}"
         self.thread = threading.Thread(target=lambda: asyncio.run(self.server.serve(self.sock)), daemon=True)
