@@ -240,3 +240,37 @@ def test_two_nodes_behind_a_prefix_routing_balancer(cache_dir):
         for p in (pa, pb):
             p.terminate()
             p.communicate(timeout=30)
+
+
+def test_a_worker_that_takes_no_connections_gets_503_not_a_wrong_404(library):
+    """When another worker's inbox stays full, a request for its session is retried, then answered 503;
+    it is never served by the wrong worker (which would say 404)."""
+    from guardian.service import Limits, ServiceConfig, ServiceThread
+
+    class FullInbox:
+        node, worker, workers = "n0", 0, 2
+        tries = 0
+
+        def start(self, server):
+            pass
+
+        def stop(self):
+            pass
+
+        def place(self):
+            return 0
+
+        def send_connection(self, worker, fd, data, placement=False):
+            FullInbox.tries += 1
+            return False
+
+    svc = ServiceThread(library, ServiceConfig(port=0, limits=Limits(read_timeout=0.3)))
+    svc.server.router = FullInbox()
+    with svc:
+        other = f"n0.1.{svc.store.ids.new().split('.')[2]}.0123456789abcdef"
+        status, headers, err = call(svc.address, "POST", f"/sessions/{other}/step", step(0, GOOD_STATE, GOOD_INPUT),
+                                    secret_header("x"))
+        assert status == 503 and "worker 1" in err["error"] and headers["retry-after"] == "1"
+        assert FullInbox.tries > 10
+        sid, secret = create(svc.address)  # this worker's own sessions are served as ever
+        assert call(svc.address, "GET", f"/sessions/{sid}", None, secret_header(secret))[0] == 200

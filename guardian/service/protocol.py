@@ -27,6 +27,7 @@ from guardian.service.sessions import SECRET_HEADER, ServiceError, SessionIds
 
 log = logging.getLogger("guardian.service")
 REFUSED_DRAIN = 1.0  # seconds a connection refused at the limit is read (and discarded) before it closes
+HANDOFF_RETRY = 0.002  # seconds between attempts to hand a connection to a worker whose inbox is full
 
 
 class Connection(asyncio.Protocol):
@@ -48,6 +49,7 @@ class Connection(asyncio.Protocol):
         self.close_after = False   # answer what is running, then close (the client half-closed)
         self.write_paused = False
         self.task = None
+        self.handoff_tries = 0
 
     def now(self) -> float:
         return self.server.now()
@@ -334,11 +336,20 @@ class Connection(asyncio.Protocol):
             # an earlier answer is still being written: wait for it, or it could arrive after the next one
             self.state = "busy"
             self.transport.pause_reading()
-            asyncio.get_running_loop().call_later(0.002, self._retry_handoff)
+            asyncio.get_running_loop().call_later(HANDOFF_RETRY, self._retry_handoff)
             return True
         sock = self.transport.get_extra_info("socket")
         if not router.send_connection(worker, sock.fileno(), bytes(self.buf), placement=placement):
-            return False  # the worker's inbox is full or gone: serve the request here (404/410)
+            # the worker's inbox is full (it is far behind, or restarting): try again shortly, then give up
+            self.handoff_tries += 1
+            if self.handoff_tries * HANDOFF_RETRY > self.limits.read_timeout:
+                self._send_and_close(503, f"worker {worker} takes no connections now; try again later",
+                                     (("retry-after", "1"),))
+                return True
+            self.state = "busy"
+            self.transport.pause_reading()
+            asyncio.get_running_loop().call_later(HANDOFF_RETRY, self._retry_handoff)
+            return True
         self.server.connections.discard(self)
         self.server.handed_off += 1
         self.state = "gone"

@@ -244,6 +244,8 @@ def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = T
         Run it with ``asyncio.run(server.serve(sock))``; ``server.request_stop()`` stops it gracefully.
     """
     config.check()
+    if config.workers != 1:
+        raise ValueError("make_server runs one worker; workers.serve_workers runs several")
     if warm:
         warm_up(library)
     server = Server(library, config, ids=SessionIds.starting_now(config.node))

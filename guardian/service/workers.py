@@ -224,6 +224,7 @@ def _worker_main(library, config: ServiceConfig, sock, worker: int, boot: int, s
     """The body of one forked worker process; returns its exit code."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    _die_with_parent()
     for k, (rx, _) in enumerate(inboxes):
         if k != worker:
             rx.close()
@@ -322,6 +323,17 @@ class Supervisor:
                 self._spawn(worker, max(time.time_ns() // 1_000_000, self.boots[worker] + 1))
         self.sock.close()
         return 0
+
+
+def _die_with_parent() -> None:
+    """Linux: SIGTERM this worker when the parent dies (a killed parent leaves no workers serving)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def _signal(pid: int, sig) -> None:
