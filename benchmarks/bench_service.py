@@ -308,18 +308,47 @@ async def _open_all(address, trajs, clients: int, n: int, transport: str, api: s
     return opened
 
 
+def machine_busy_seconds() -> float:
+    """CPU seconds every process of the machine has used (user + nice + system + irq + softirq + steal)."""
+    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    user, nice, system, idle, iowait, irq, softirq, steal = (int(v) for v in fields[:8])
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
+def wait_quiet(threshold: float, max_wait: float) -> float:
+    """Wait (up to ``max_wait`` s) for a second in which the machine is busier than ``threshold`` of its
+    cores by less; returns the share of that last second (other users of a shared machine)."""
+    deadline = time.monotonic() + max_wait
+    while True:
+        b0, t0 = machine_busy_seconds(), time.perf_counter()
+        time.sleep(1.0)
+        share = (machine_busy_seconds() - b0) / (time.perf_counter() - t0) / (os.cpu_count() or 1)
+        if share < threshold or time.monotonic() > deadline:
+            return share
+
+
 def _run_clients(address, trajs, clients: int, n: int, transport: str, api: str, server):
     opened = asyncio.run(_open_all(address, trajs, clients, n, transport, api))
     lat = []
-    cpu0, t0, own0 = server.cpu_seconds(), time.perf_counter(), time.process_time()
+    cpu0, t0, own0, busy0 = server.cpu_seconds(), time.perf_counter(), time.process_time(), machine_busy_seconds()
     drive([c for c, _, _ in opened], lat)
     wall = time.perf_counter() - t0
     cpu, own = server.cpu_seconds() - cpu0, time.process_time() - own0
+    others = max(0.0, machine_busy_seconds() - busy0 - cpu - own)
+    _run_clients.others_share = others / wall / (os.cpu_count() or 1)  # of the machine, during the timed phase
     errors = [e for c, _, _ in opened for e in c.errors]
     lasts = [(c.last, sid, secret) for c, sid, secret in opened]
     for c, _, _ in opened:
         c.sock.close()
+    asyncio.run(_delete_all(address, [(sid, secret) for _, sid, secret in opened]))
     return lat, errors, wall, cpu, own, lasts
+
+
+async def _delete_all(address, sessions) -> None:
+    for start in range(0, len(sessions), 100):
+        await asyncio.gather(*(one_request(address, "DELETE", f"/sessions/{sid}", b"",
+                                           f"Session-Secret: {secret}\r\n" if secret else "")
+                               for sid, secret in sessions[start:start + 100]))
 
 
 def measure(server: ServerProcess, trajs, clients: int, transport: str, api: str, library=None) -> dict:
@@ -336,7 +365,8 @@ def measure(server: ServerProcess, trajs, clients: int, transport: str, api: str
             "errors": len(errors), "steps_per_s": round(ms.size / wall, 1),
             "p50_ms": round(float(np.percentile(ms, 50)), 3), "p99_ms": round(float(np.percentile(ms, 99)), 3),
             "server_cpu_ms_per_step": round(cpu / ms.size * 1e3, 4), "client_cpu_ms_per_step": round(own / ms.size * 1e3, 4),
-            "checked": checked, "mismatched": mismatched, "error_sample": [str(e) for e in errors[:3]]}
+            "checked": checked, "mismatched": mismatched, "error_sample": [str(e) for e in errors[:3]],
+            "others_cpu_share": round(_run_clients.others_share, 3)}
 
 
 def memory(server: ServerProcess, trajs, sessions: int = 300, steps: int = 60, api: str = "new") -> dict:
@@ -481,6 +511,13 @@ def main() -> int:
     ap.add_argument("--before", default=None, metavar="REV", help="also measure this revision's service")
     ap.add_argument("--no-memory", action="store_true")
     ap.add_argument("--nginx", action="store_true", help="only the two-node setup behind nginx (docs/service.md)")
+    ap.add_argument("--quiet", type=float, default=1.0, metavar="SHARE",
+                    help="--scaling: before each measurement wait for a second with the machine busy less than "
+                         "SHARE (e.g. 0.1: other users take under 10 %% of the cores)")
+    ap.add_argument("--quiet-wait", type=float, default=300.0, help="seconds to wait for such a second at most")
+    ap.add_argument("--scaling", action="store_true",
+                    help="only throughput by workers, the servers measured in alternation (round r: every "
+                         "worker count once), so that load from other processes falls on all of them alike")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -500,6 +537,35 @@ def main() -> int:
             print(json.dumps(result, indent=2))
         return 0
 
+    if args.scaling:
+        servers = {w: ServerProcess(w) for w in args.workers}
+        try:
+            for server in servers.values():
+                server.wait_ready()
+            rows = []
+            for transport in args.transports:
+                for clients in args.clients:
+                    for rnd in range(args.repeat):
+                        got = {}
+                        for w, server in servers.items():
+                            before = wait_quiet(args.quiet, args.quiet_wait) if args.quiet < 1 else None
+                            got[w] = measure(server, trajs, clients, transport, "new", library)
+                            got[w]["machine_busy_before"] = before
+                        base = got[min(got)]["steps_per_s"]
+                        line = ", ".join(f"{w} w: {r['steps_per_s']:.0f} ({r['steps_per_s'] / base:.2f}x, others "
+                                         f"{100 * r['others_cpu_share']:.0f} %)" for w, r in got.items())
+                        print(f"scaling {transport:6s} {clients:5d} clients round {rnd}: {line}", file=sys.stderr,
+                              flush=True)
+                        rows.append({"transport": transport, "clients": clients, "round": rnd,
+                                     **{f"workers_{w}": r for w, r in got.items()}})
+            result["scaling"] = rows
+        finally:
+            for server in servers.values():
+                server.stop()
+        if args.json:
+            print(json.dumps(result, indent=2))
+        return 0
+
     def run_server(label, workers, tree, api):
         server = ServerProcess(workers, tree)
         try:
@@ -511,17 +577,25 @@ def main() -> int:
                     best = sorted(reps, key=lambda r: r["steps_per_s"])[len(reps) // 2]
                     row = {"server": label, **best, "steps_per_s_runs": rates,
                            "server_cpu_ms_runs": [r["server_cpu_ms_per_step"] for r in reps],
+                           "others_cpu_share_runs": [r["others_cpu_share"] for r in reps],
                            "errors": sum(r["errors"] for r in reps), "mismatched": sum(r["mismatched"] for r in reps)}
                     result["runs"].append(row)
                     print(f"{label:6s} w={workers} {transport:6s} {clients:5d} clients: {statistics.median(rates):8.0f} "
                           f"steps/s [{min(rates):.0f}-{max(rates):.0f}], p50 {row['p50_ms']} ms, p99 {row['p99_ms']} ms, "
                           f"server CPU {row['server_cpu_ms_per_step']} ms/step, client CPU "
                           f"{row['client_cpu_ms_per_step']} ms/step, errors {row['errors']}, replies checked "
-                          f"{4 * len(reps)} mismatched {row['mismatched']}   (load {os.getloadavg()[0]:.2f})",
+                          f"{4 * len(reps)} mismatched {row['mismatched']}, other processes "
+                          f"{100 * max(r['others_cpu_share'] for r in reps):.0f} % of the machine at most",
                           file=sys.stderr, flush=True)
-            if not args.no_memory and workers == 1:
-                result["memory"][label] = memory(server, trajs, api=api)
-                print(f"{label:6s} memory: {result['memory'][label]}", file=sys.stderr, flush=True)
+        finally:
+            server.stop()
+
+    def run_memory(label, tree, api):
+        server = ServerProcess(1, tree)  # a fresh one: memory freed by earlier runs would hide the growth
+        try:
+            server.wait_ready()
+            result["memory"][label] = memory(server, trajs, api=api)
+            print(f"{label:6s} memory: {result['memory'][label]}", file=sys.stderr, flush=True)
         finally:
             server.stop()
 
@@ -531,9 +605,13 @@ def main() -> int:
         with checkout(args.before) as tree:
             result["first_step"]["before"] = first_step(tree, trajs, "old")
             print(f"before first step: {result['first_step']['before']}", file=sys.stderr, flush=True)
+            if not args.no_memory:
+                run_memory("before", tree, "old")
             run_server("before", 1, tree, "old")
     result["first_step"]["after"] = first_step(None, trajs, "new")
     print(f"after  first step: {result['first_step']['after']}", file=sys.stderr, flush=True)
+    if not args.no_memory:
+        run_memory("after", None, "new")
     for workers in args.workers:
         run_server("after", workers, None, "new")
     result["load_after"] = os.getloadavg()
