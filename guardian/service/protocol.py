@@ -30,8 +30,13 @@ REFUSED_DRAIN = 1.0  # seconds a connection refused at the limit is read (and di
 HANDOFF_RETRY = 0.002  # seconds between attempts to hand a connection to a worker whose inbox is full
 
 
-class Connection(asyncio.Protocol):
-    """HTTP/1.1 (keep-alive, pipelining, chunked bodies) on one socket; see the module docstring."""
+class Connection(asyncio.BufferedProtocol):
+    """HTTP/1.1 (keep-alive, pipelining, chunked bodies) on one socket; see the module docstring.
+
+    A buffered protocol: the transport reads into one 64 KiB buffer per worker (``get_buffer``) and the
+    bytes are copied out at once (``buffer_updated``); a plain protocol's reads allocate 256 KiB each
+    (~11 us per request on Python 3.11).
+    """
 
     def __init__(self, server, initial: bytes = b"", placed_by: int | None = None):
         self.server = server
@@ -74,6 +79,12 @@ class Connection(asyncio.Protocol):
         conns.add(self)
         if self.buf:
             self._process()
+
+    def get_buffer(self, sizehint: int):
+        return self.server.read_buffer
+
+    def buffer_updated(self, nbytes: int) -> None:
+        self.data_received(bytes(self.server.read_buffer[:nbytes]))
 
     def data_received(self, data: bytes) -> None:
         if self.state == "stream":

@@ -28,6 +28,7 @@ from guardian.service.sessions import NODE_NAME, SessionIds, SessionStore
 TOKEN_ENV = "GUARDIAN_TOKEN"
 ADMIN_TOKEN_ENV = "GUARDIAN_ADMIN_TOKEN"
 log = logging.getLogger("guardian.service")
+READ_BUFFER = 64 * 1024  # bytes per read (one buffer per worker: reads are copied out at once)
 
 
 @dataclass(frozen=True)
@@ -161,6 +162,7 @@ class Server:
         self.connection_cap = config.limits.connection_cap()
         self.refused = 0
         self.handed_off = 0
+        self.read_buffer = memoryview(bytearray(READ_BUFFER))  # every connection reads into it (one loop)
         self.started = threading.Event()
         self._loop = None
         self._stop = None
