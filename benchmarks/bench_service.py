@@ -38,7 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-STEPS_PER_CLIENT = {1: 2000, 50: 80, 200: 24, 1000: 8}
+STEPS_PER_CLIENT = {1: 2000}  # one client: a fixed number of steps (more clients: DURATION seconds each)
 TRAJECTORIES = 16
 
 
@@ -197,6 +197,11 @@ class Client:
         self.sent_at = 0.0
         self.last = b""
         self.errors = []
+        self.keep_last = False  # time-limited runs: the last answer is whichever came last
+
+    @property
+    def answered(self) -> int:
+        return self.i
 
     def next_answer(self) -> bool:
         """Consume one whole answer from the buffer (keeping the body of the last one); False if none yet."""
@@ -226,14 +231,16 @@ class Client:
             if buf[9:12] != b"200":
                 self.errors.append(int(buf[9:12]))
             at = end + 4
-        if self.i == len(self.requests) - 1:
+        if self.i == len(self.requests) - 1 or self.keep_last:
             self.last = bytes(buf[at:total])
         del buf[:total]
         return True
 
 
-def drive(clients: list, lat: list) -> None:
-    """Run every client to its last answer: a bare epoll loop over the prepared sockets."""
+def drive(clients: list, lat: list, duration: float | None = None) -> int:
+    """Run the clients on a bare epoll loop over the prepared sockets, each to its last request, or until
+    ``duration`` seconds have passed (then no new request is sent, the answers in flight are awaited and
+    not counted). Returns the number of answers counted (those in ``lat``)."""
     import select
 
     ep = select.epoll()
@@ -243,6 +250,8 @@ def drive(clients: list, lat: list) -> None:
         by_fd[c.sock.fileno()] = c
         ep.register(c.sock.fileno(), select.EPOLLIN)
     clock = time.perf_counter
+    deadline = clock() + duration if duration else float("inf")
+    counting = True
     for c in clients:
         c.sent_at = clock()
         c.sock.sendall(c.requests[0])
@@ -259,15 +268,19 @@ def drive(clients: list, lat: list) -> None:
             c.buf += data
             while c.next_answer():
                 now = clock()
-                lat.append(now - c.sent_at)
+                if counting and now > deadline:
+                    counting = False
+                if counting:
+                    lat.append(now - c.sent_at)
                 c.i += 1
-                if c.i == len(c.requests):
+                if c.i == len(c.requests) or not counting:
                     ep.unregister(fd)
                     remaining -= 1
                     break
                 c.sent_at = now
                 c.sock.sendall(c.requests[c.i])
     ep.close()
+    return len(lat)
 
 
 async def _open(address, traj: dict, n: int, transport: str, api: str):
@@ -327,17 +340,21 @@ def wait_quiet(threshold: float, max_wait: float) -> float:
             return share
 
 
-def _run_clients(address, trajs, clients: int, n: int, transport: str, api: str, server):
+def _run_clients(address, trajs, clients: int, n: int, transport: str, api: str, server, duration=None):
     opened = asyncio.run(_open_all(address, trajs, clients, n, transport, api))
     lat = []
+    for c, _, _ in opened[:4]:
+        c.keep_last = duration is not None
     cpu0, t0, own0, busy0 = server.cpu_seconds(), time.perf_counter(), time.process_time(), machine_busy_seconds()
-    drive([c for c, _, _ in opened], lat)
-    wall = time.perf_counter() - t0
+    drive([c for c, _, _ in opened], lat, duration)
+    wall = duration if duration else time.perf_counter() - t0
+    answered = sum(c.answered for c, _, _ in opened)
+    _run_clients.answered = answered
     cpu, own = server.cpu_seconds() - cpu0, time.process_time() - own0
     others = max(0.0, machine_busy_seconds() - busy0 - cpu - own)
     _run_clients.others_share = others / wall / (os.cpu_count() or 1)  # of the machine, during the timed phase
     errors = [e for c, _, _ in opened for e in c.errors]
-    lasts = [(c.last, sid, secret) for c, sid, secret in opened]
+    lasts = [(c.last, sid, secret, c.answered) for c, sid, secret in opened]
     for c, _, _ in opened:
         c.sock.close()
     asyncio.run(_delete_all(address, [(sid, secret) for _, sid, secret in opened]))
@@ -351,20 +368,34 @@ async def _delete_all(address, sessions) -> None:
                                for sid, secret in sessions[start:start + 100]))
 
 
+DURATION = 3.0       # seconds of a timed run with more than one client (no tail of clients finishing late)
+RATE_BOUND = 12_000  # steps/s no configuration here reaches: requests prepared per client = rate x duration / clients
+
+
 def measure(server: ServerProcess, trajs, clients: int, transport: str, api: str, library=None) -> dict:
-    n = STEPS_PER_CLIENT.get(clients, max(4, 4000 // clients))
-    lat, errors, wall, cpu, own, lasts = _run_clients(server.address, trajs, clients, n, transport, api, server)
+    """One run: with one client a fixed number of steps; with more, every client steps for DURATION seconds
+    (throughput = the answers within it / DURATION: no tail of clients finishing late)."""
+    if clients == 1:
+        n, duration = STEPS_PER_CLIENT[1], None
+    else:
+        n, duration = min(len(trajs[0]["steps"]), int(RATE_BOUND * DURATION / clients) + 10), DURATION
+    lat, errors, wall, cpu, own, lasts = _run_clients(server.address, trajs, clients, n, transport, api, server,
+                                                      duration)
     checked = mismatched = 0
     if library is not None:  # the last answer of a few sessions against the local guardian
-        for k, (last, _, _) in enumerate(lasts[:4]):
-            want = expected_applied(library, trajs[k % len(trajs)], n)
-            checked += 1
-            mismatched += json.loads(last)["applied"] != want
+        for k, (last, _, _, answered) in enumerate(lasts[:4]):
+            if answered:
+                want = expected_applied(library, trajs[k % len(trajs)], answered)
+                checked += 1
+                mismatched += json.loads(last)["applied"] != want
+    exhausted = sum(answered == n for *_, answered in lasts) if duration else 0
     ms = np.array(lat) * 1e3
+    total = _run_clients.answered
     return {"workers": server.workers, "clients": clients, "transport": transport, "steps": int(ms.size),
             "errors": len(errors), "steps_per_s": round(ms.size / wall, 1),
             "p50_ms": round(float(np.percentile(ms, 50)), 3), "p99_ms": round(float(np.percentile(ms, 99)), 3),
-            "server_cpu_ms_per_step": round(cpu / ms.size * 1e3, 4), "client_cpu_ms_per_step": round(own / ms.size * 1e3, 4),
+            "server_cpu_ms_per_step": round(cpu / total * 1e3, 4), "client_cpu_ms_per_step": round(own / total * 1e3, 4),
+            "clients_that_ran_out_of_steps": exhausted,
             "checked": checked, "mismatched": mismatched, "error_sample": [str(e) for e in errors[:3]],
             "others_cpu_share": round(_run_clients.others_share, 3)}
 
@@ -403,6 +434,7 @@ def first_step(tree: Path | None, trajs, api: str) -> dict:
     try:
         started = time.perf_counter() - server.started
         lat, errors, wall, cpu, own, _ = _run_clients(server.address, trajs, 1, 1, "http", api, server)
+        _run_clients.answered = 1
         return {"seconds_to_listen": round(started, 2), "first_step_ms": round(lat[0] * 1e3, 2), "errors": len(errors)}
     finally:
         server.stop()
@@ -525,7 +557,7 @@ def main() -> int:
 
     library = build_library(quiet=True)
     t = time.perf_counter()
-    trajs = trajectories(library, TRAJECTORIES, max(STEPS_PER_CLIENT.get(c, 4) for c in args.clients))
+    trajs = trajectories(library, TRAJECTORIES, STEPS_PER_CLIENT[1])
     print(f"{len(trajs)} trajectories in {time.perf_counter() - t:.1f} s; intention identified on "
           f"{100 * np.mean([tr['identified'] for tr in trajs]):.0f} % of steps", file=sys.stderr)
     load = os.getloadavg()
