@@ -534,6 +534,78 @@ def behind_nginx(trajs, library, clients=(1, 50, 200), repeat: int = 1, transpor
     return rows
 
 
+WRK_SCRIPT = """
+local counter = 0
+function setup(thread)
+  thread:set("id", counter)
+  counter = counter + 1
+end
+function init(args)
+  local f = io.open(args[1] .. "/" .. id .. ".req", "rb")
+  local data = f:read("*a")
+  f:close()
+  reqs = {}
+  for r in string.gmatch(data, "(.-)%z") do reqs[#reqs + 1] = r end
+  -- wrk calls request() of the first thread once before the run (script_verify_request): give it a copy
+  if id == 0 then table.insert(reqs, 1, reqs[1]) end
+  i = 0
+end
+function request()
+  i = i + 1
+  if i > #reqs then i = #reqs end  -- past the prepared steps: the last again (a retry: its stored answer)
+  return reqs[i]
+end
+"""
+
+
+def _wrk_value(text: str, pattern: str) -> str | None:
+    import re
+
+    m = re.search(pattern, text)
+    return m.group(1) if m else None
+
+
+def _ms(value: str | None) -> float | None:
+    if value is None:
+        return None
+    for unit, scale in (("us", 1e-3), ("ms", 1.0), ("s", 1e3)):
+        if value.endswith(unit):
+            return round(float(value[:-len(unit)]) * scale, 3)
+    return None
+
+
+def with_wrk(server: ServerProcess, trajs, clients: int, duration: float = DURATION) -> dict:
+    """HTTP steps driven by wrk (C, one thread per connection, each thread its own session's prepared
+    requests from a file): throughput and latency from a load generator this project did not write."""
+    import shutil
+    import tempfile
+
+    if shutil.which("wrk") is None:
+        raise SystemExit("--wrk needs wrk on PATH (apt-get install wrk)")
+    n = min(len(trajs[0]["steps"]), int(RATE_BOUND * duration / clients) + 10)
+    opened = asyncio.run(_open_all(server.address, trajs, clients, n, "http", "new"))
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (c, _, _) in enumerate(opened):
+            Path(tmp, f"{k}.req").write_bytes(b"".join(r + b"\0" for r in c.requests))
+            c.sock.close()
+        script = Path(tmp, "steps.lua")
+        script.write_text(WRK_SCRIPT)
+        url = "http://%s:%d/" % server.address
+        cpu0 = server.cpu_seconds()
+        out = subprocess.run(["wrk", "-t", str(clients), "-c", str(clients), "-d", f"{duration:g}s", "--latency",
+                              "-s", str(script), url, "--", tmp], capture_output=True, text=True, timeout=120).stdout
+        cpu = server.cpu_seconds() - cpu0
+    asyncio.run(_delete_all(server.address, [(sid, secret) for _, sid, secret in opened]))
+    total = int(_wrk_value(out, r"(\d+) requests in") or 0)
+    return {"workers": server.workers, "clients": clients, "client": "wrk", "steps": total,
+            "steps_per_s": float(_wrk_value(out, r"Requests/sec:\s+([\d.]+)") or 0),
+            "p50_ms": _ms(_wrk_value(out, r"50%\s+([\d.]+\w+)")), "p99_ms": _ms(_wrk_value(out, r"99%\s+([\d.]+\w+)")),
+            "non_2xx": int(_wrk_value(out, r"Non-2xx or 3xx responses: (\d+)") or 0),
+            "socket_errors": _wrk_value(out, r"Socket errors: (.*)"),
+            "server_cpu_ms_per_step": round(cpu / total * 1e3, 4) if total else None,
+            "ran_out_of_steps": total > n * clients}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
@@ -547,6 +619,8 @@ def main() -> int:
                     help="--scaling: before each measurement wait for a second with the machine busy less than "
                          "SHARE (e.g. 0.1: other users take under 10 %% of the cores)")
     ap.add_argument("--quiet-wait", type=float, default=300.0, help="seconds to wait for such a second at most")
+    ap.add_argument("--wrk", action="store_true",
+                    help="only HTTP steps driven by wrk (one thread per session), servers in alternation")
     ap.add_argument("--scaling", action="store_true",
                     help="only throughput by workers, the servers measured in alternation (round r: every "
                          "worker count once), so that load from other processes falls on all of them alike")
@@ -565,6 +639,32 @@ def main() -> int:
 
     if args.nginx:
         result["nginx"] = behind_nginx(trajs, library, tuple(args.clients), args.repeat, tuple(args.transports))
+        if args.json:
+            print(json.dumps(result, indent=2))
+        return 0
+
+    if args.wrk:
+        servers = {w: ServerProcess(w) for w in args.workers}
+        try:
+            for server in servers.values():
+                server.wait_ready()
+            rows = []
+            for clients in args.clients:
+                for rnd in range(args.repeat):
+                    got = {}
+                    for w, server in servers.items():
+                        before = wait_quiet(args.quiet, args.quiet_wait) if args.quiet < 1 else None
+                        got[w] = {**with_wrk(server, trajs, clients), "machine_busy_before": before}
+                    base = got[min(got)]["steps_per_s"]
+                    print(f"wrk     http   {clients:5d} clients round {rnd}: " + ", ".join(
+                        f"{w} w: {r['steps_per_s']:.0f} ({r['steps_per_s'] / base:.2f}x, p50 {r['p50_ms']} ms, "
+                        f"p99 {r['p99_ms']} ms, non-2xx {r['non_2xx']}, server CPU {r['server_cpu_ms_per_step']} "
+                        f"ms/step)" for w, r in got.items()), file=sys.stderr, flush=True)
+                    rows.append({"clients": clients, "round": rnd, **{f"workers_{w}": r for w, r in got.items()}})
+            result["wrk"] = rows
+        finally:
+            for server in servers.values():
+                server.stop()
         if args.json:
             print(json.dumps(result, indent=2))
         return 0
