@@ -225,6 +225,8 @@ class Client:
             if end < 0:
                 return False
             k = buf.find(b"content-length: ", 0, end)
+            if k < 0:  # nginx capitalises
+                k = buf.find(b"Content-Length: ", 0, end)
             total = end + 4 + int(buf[k + 16:buf.find(b"\r", k)])
             if len(buf) < total:
                 return False
