@@ -247,7 +247,8 @@ class App:
             return service_error(exc)
 
     def _health(self, head, sid, body) -> Response:
-        counts = self.cluster.totals() if self.cluster is not None else {**self.store.counts(), "workers": 1}
+        counts = (self.cluster.totals() if self.cluster is not None
+                  else {**self.store.counts(), "workers": 1, "workers_alive": 1})
         return json_response(200, {"status": "ok", "node": self.store.ids.node, "worker": self.store.ids.worker,
                                    **counts, "max_sessions": self.store.max_sessions,
                                    "session_ttl_s": self.store.ttl})
