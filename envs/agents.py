@@ -1,8 +1,9 @@
 """The one registry of agents: every driver of every environment, for either action type.
 
 Every agent is built as ``make_agent(name, env, rng)`` and called as ``agent(obs) -> action`` in the
-environment's own action space: a highway-env ``DiscreteMetaAction`` or ``ContinuousAction``
-(normalised to ``[-1, 1]``), or any other ``Box`` (``random`` and ``idle`` only).
+environment's own action space: a highway-env ``DiscreteMetaAction``, ``ContinuousAction`` (the axes it
+controls, normalised to ``[-1, 1]``) or ``DiscreteAction`` (the nearest point of its grid), or any other
+``Box`` (``random`` and ``idle`` only).
 
 * ``random``: uniform in the action space (meta: one of the five actions);
 * ``reckless``: meta: changes lanes whenever it can, alternating sides, else FASTER;
@@ -45,9 +46,20 @@ def _meta_names(env) -> list:
 
 
 def _continuous(env, throttle: float, steer: float):
-    """An action at fractions ``throttle, steer`` in ``[-1, 1]`` of the env's continuous range."""
-    if _kind(env) == "ContinuousAction":
-        return np.array([throttle, steer], dtype=np.float32)
+    """An action at fractions ``throttle, steer`` in ``[-1, 1]`` of the env's continuous range: the axes the
+    action type controls (highway-env's ``ContinuousAction``), or the nearest point of a ``DiscreteAction``
+    grid (its index: the first axis varies slowest, as ``itertools.product``)."""
+    kind = _kind(env)
+    if kind in ("ContinuousAction", "DiscreteAction"):
+        at = env.unwrapped.action_type
+        values = [throttle] * at.longitudinal + [steer] * at.lateral
+        if kind == "ContinuousAction":
+            return np.array(values, dtype=np.float32)
+        grid = np.linspace(-1.0, 1.0, at.actions_per_axis)
+        index = 0
+        for v in values:
+            index = index * at.actions_per_axis + int(np.argmin(np.abs(grid - v)))
+        return index
     space = env.action_space
     mid, half = (space.high + space.low) / 2, (space.high - space.low) / 2
     return (mid + half * np.array([throttle, steer])).astype(space.dtype)
@@ -58,7 +70,7 @@ class RandomAgent:
         self.space, self.rng, self.kind = env.action_space, rng, _kind(env)
 
     def __call__(self, obs):
-        if self.kind == "DiscreteMetaAction":
+        if hasattr(self.space, "n"):  # DiscreteMetaAction, DiscreteAction
             return int(self.rng.integers(self.space.n))
         return self.rng.uniform(self.space.low, self.space.high).astype(self.space.dtype)
 
@@ -86,6 +98,8 @@ class IdleAgent:
     def __call__(self, obs):
         if self.kind == "DiscreteMetaAction":
             return _meta_names(self.env).index("IDLE")
+        if self.kind in ("ContinuousAction", "DiscreteAction"):
+            return _continuous(self.env, 0.0, 0.0)
         return np.clip(np.zeros(2), self.env.action_space.low, self.env.action_space.high).astype(
             self.env.action_space.dtype)
 
