@@ -107,7 +107,8 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env, library=None, config: GuardianConfig | None = None):
-        gym.utils.RecordConstructorArgs.__init__(self, library=library, config=config)
+        # recorded as given (env.spec): the library's sets are read-only and large, the config is frozen
+        gym.utils.RecordConstructorArgs.__init__(self, library=library, config=config, _disable_deepcopy=True)
         super().__init__(env)
         config = GuardianConfig() if config is None else config
         base = env.unwrapped

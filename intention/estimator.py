@@ -31,6 +31,7 @@ class _SlidingFeasibilityLP:
     """``exists w(k) in W for k in the window: E w(k) = r(k)`` with r written per slot."""
 
     def __init__(self, E: np.ndarray, w_lower: np.ndarray, w_upper: np.ndarray, horizon: int, tol: float):
+        self._args = (E, w_lower, w_upper, horizon, tol)
         n_x, n_w = E.shape
         self.n_x, self.n_w, self.N, self.tol = n_x, n_w, horizon, tol
         h = quiet_highs()
@@ -58,6 +59,15 @@ class _SlidingFeasibilityLP:
         self._rows = np.arange(lp.num_row_, dtype=np.int32)
         self._lower = np.full(lp.num_row_, -INF)
         self._upper = np.full(lp.num_row_, INF)
+
+    def __getstate__(self) -> dict:
+        """The constructor's arguments and the window's row bounds (a HiGHS model cannot be pickled)."""
+        return {"args": self._args, "lower": self._lower, "upper": self._upper}
+
+    def __setstate__(self, state: dict) -> None:
+        """A fresh HiGHS model with the same rows; the window's bounds are written at the next solve."""
+        self.__init__(*state["args"])
+        self._lower[:], self._upper[:] = state["lower"], state["upper"]
 
     def clear(self) -> None:
         self._lower[:] = -INF
