@@ -282,6 +282,19 @@ BASELINES = ("mpc", "bad", "careful", "random")
 ADVERSARIES = ("seek", "brake_check", "oscillate", "hold", "trap")  # need a highway-env road
 
 
+def _algorithm_of(data: dict) -> str | None:
+    """The stable-baselines3 algorithm of a saved model's data: its policy class's module names it
+    (``stable_baselines3.<algo>.policies``; DDPG's are TD3's, which loads it alike), except PPO's and A2C's,
+    which share ``stable_baselines3.common.policies``: PPO saves its ``clip_range``, A2C has none."""
+    module = getattr(data.get("policy_class"), "__module__", "") or ""
+    parts = module.split(".")
+    if len(parts) < 2 or parts[0] != "stable_baselines3":
+        return None
+    if parts[1] == "common":
+        return "PPO" if "clip_range" in data else "A2C"
+    return parts[1]
+
+
 class PolicyAgent:
     """A stable-baselines3 policy file (``policy:PATH``), acting deterministically on the observation.
 
@@ -303,6 +316,9 @@ class PolicyAgent:
         self.model = self.load(path, algo)
         if self.model.action_space != env.action_space:
             raise ValueError(f"the policy {path} acts in {self.model.action_space}, the env in {env.action_space}")
+        if self.model.observation_space != env.observation_space:
+            raise ValueError(f"the policy {path} observes {self.model.observation_space}, the env gives "
+                             f"{env.observation_space} (its config's 'observation' differs)")
 
     @classmethod
     def load(cls, path: str, algo: str | None = None):
@@ -318,10 +334,8 @@ class PolicyAgent:
                 from stable_baselines3.common.save_util import load_from_zip_file
             except ImportError:
                 raise ValueError("a --policy needs stable-baselines3: pip install 'guardian[rl]'") from None
-            if algo is None:  # the policy class's module names the algorithm: stable_baselines3.<algo>.policies
-                data = load_from_zip_file(file, device="cpu")[0]
-                module = getattr(data.get("policy_class"), "__module__", "")
-                algo = module.split(".")[1] if module.startswith("stable_baselines3.") else None
+            if algo is None:
+                algo = _algorithm_of(load_from_zip_file(file, device="cpu")[0])
                 if algo is None:
                     raise ValueError(f"cannot tell the algorithm of {path}; name it (--algo DQN, PPO, ...)")
             model_class = getattr(stable_baselines3, algo.upper(), None)
