@@ -26,7 +26,9 @@ HIGHWAY_CASES = [
     ("highway-fast-v0", {"action": {"type": "ContinuousAction", "lateral": False}}),
     ("highway-fast-v0", {"action": {"type": "ContinuousAction", "longitudinal": False}}),
 ]
-OVERTAKE_CASES = [(OVERTAKE, {}), (OVERTAKE, {"action": {"type": "DiscreteMetaAction"}}), (TWO_CARS, {})]
+OVERTAKE_CASES = [(OVERTAKE, {}), (OVERTAKE, {"action": {"type": "DiscreteMetaAction"}}), (TWO_CARS, {}),
+                  (OVERTAKE, {"action": {"type": "DiscreteAction"}}),
+                  (OVERTAKE, {"action": {"type": "ContinuousAction", "lateral": False}})]
 # what highway-env's own envs warn about under check_env too (and any wrapper draws the first)
 KNOWN_WARNINGS = ("is different from the unwrapped version", "observation space minimum value is -infinity",
                   "observation space maximum value is infinity")
