@@ -34,10 +34,12 @@ from envs.agents import make_agent
 from guardian.rollout import OVERTAKE_ENV, highway_env_config
 from guardian.wrapper import Guardian
 from intention.library import build_library
+from intention.params import OvertakeParams
 
 DENSE = {"lanes_count": 5, "vehicles_count": 80}  # issue 12's dense configuration
 CASES = [(OVERTAKE_ENV, "continuous", None), (OVERTAKE_ENV, "meta", None), ("highway-v0", "meta", None),
-         ("highway-v0", "continuous", None), ("highway-v0", "meta", DENSE), ("highway-v0", "continuous", DENSE)]
+         ("highway-v0", "continuous", None), ("highway-v0", "meta", DENSE), ("highway-v0", "continuous", DENSE),
+         ("highway-fast-v0", "meta", None), ("highway-fast-v0", "continuous", None)]  # what RL users train on
 
 
 def _timed_sim(env, episodes: int, guarded: bool):
@@ -57,8 +59,9 @@ def _timed_sim(env, episodes: int, guarded: bool):
 
             def timed(*a, _f=original):
                 t = time.perf_counter()
-                _f(*a)
+                out = _f(*a)
                 hook_times.append(time.perf_counter() - t)
+                return out  # the decision, which the wrapper records
             setattr(env, name, timed)
     step_times = []
     for ep in range(episodes):
@@ -108,7 +111,7 @@ def _interleaved(env_id: str, cfg: dict, library, steps: int) -> dict:
 
 
 def bench(episodes: int, steps: int = 200) -> dict:
-    library = build_library(quiet=True, workers=2)
+    library = build_library(params=OvertakeParams.among_traffic(), quiet=True, workers=2)  # HighwayOvertake's
     out = {}
     for env_id, action, extra in CASES:
         cfg = highway_env_config(env_id, action, "cautious", "random", None, library, extra)
