@@ -162,3 +162,20 @@ def test_guardian_rl_imports_without_stable_baselines3_and_says_what_to_install(
             "try:\n    rl.ShieldedReplayBuffer\nexcept ImportError as e:\n    print(e)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert "pip install 'guardian[rl]'" in out
+
+
+def test_the_recipe_in_docs_rl_runs_as_written(tmp_path, monkeypatch, capsys):
+    """docs/rl.md's stable-baselines3 block, run as written (in a temporary folder: it saves the model)."""
+    import re
+    from pathlib import Path
+
+    import torch
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "rl.md").read_text()
+    (block,) = re.findall(r"```python\n(.*?)```", text, re.S)
+    expected = [line[2:] for line in block.splitlines() if line.startswith("# ")]
+    monkeypatch.chdir(tmp_path)
+    torch.set_num_threads(1)
+    exec(compile(block, "docs/rl.md", "exec"), {})
+    assert capsys.readouterr().out.split("\n")[:-1] == expected
+    assert (tmp_path / "dqn_shielded.zip").is_file()
