@@ -106,3 +106,46 @@ def test_with_traffic_every_safety_override_names_a_safety_reason():
             model += g["model_clip_steps"]
             done = terminated or truncated
     assert safety > 0 and model > 0
+
+
+def _watch_inputs(env) -> list:
+    """The inputs the ego integrates at each simulation step (after highway-env's own clip), read from the
+    vehicle itself, not from the guardian's decisions."""
+    ego, seen = env.unwrapped.vehicle, []
+    original = ego.step
+
+    def step(dt):
+        original(dt)
+        seen.append((float(ego.action["acceleration"]), float(ego.action["steering"])))
+    ego.step = step
+    return seen
+
+
+@pytest.mark.parametrize("action", ["ContinuousAction", "DiscreteMetaAction", "DiscreteAction"])
+def test_applied_mean_and_range_cover_every_simulation_step_of_the_policy_step(action):
+    """highway-v0 runs 15 simulation steps per policy step: ``applied_mean`` and ``applied_range`` are the
+    mean and range of what the vehicle integrated over all of them (not the last one), and a continuous
+    ``applied_action`` is that mean in the action's [-1, 1] coordinates."""
+    env = Guardian(gym.make("highway-v0", config={"action": {"type": action}, **SHORT, "policy_frequency": 1}))
+    at = env.unwrapped.action_type
+    spread = 0
+    for ep in range(2):
+        obs, _ = env.reset(seed=ep)
+        act = make_agent("reckless", env, np.random.default_rng(ep))
+        done = False
+        while not done:
+            seen = _watch_inputs(env)
+            obs, _, terminated, truncated, info = env.step(act(obs))
+            done = terminated or truncated
+            if env.unwrapped.vehicle.crashed:
+                continue  # highway-env brakes a crashed car itself
+            g, inputs = info["guardian"], np.array(seen)
+            assert len(inputs) == g["sim_steps"] == 15
+            assert np.allclose(g["applied_mean"], inputs.mean(axis=0), atol=1e-9)
+            assert np.allclose(g["applied_range"], np.c_[inputs.min(axis=0), inputs.max(axis=0)], atol=1e-9)
+            spread += int(np.ptp(inputs[:, 0]) > 1e-6)
+            if action == "ContinuousAction":
+                unit = [2 * (m - lo) / (hi - lo) - 1 for m, (lo, hi) in
+                        zip(inputs.mean(axis=0), (at.acceleration_range, at.steering_range))]
+                assert np.allclose(g["applied_action"], np.clip(unit, -1, 1), atol=1e-6)
+    assert spread > 0  # steps whose input changed within the policy step were among those checked
