@@ -1,6 +1,6 @@
 """The guardian's cost per simulation step beside the simulator's own step (issue 9: under 10 %).
 
-Run: python benchmarks/bench_highway_guardian.py [--json] [--episodes N] [--before REV]
+Run: python benchmarks/bench_highway_guardian.py [--json] [--episodes N] [--steps N] [--before REV]
 
 ``--before REV`` runs the same cases with the code of an older commit (a temporary git worktree put
 first on ``PYTHONPATH``) in the same run, and prints its figures beside these. Target (issue 12): the
@@ -11,7 +11,10 @@ For each environment and action type, seeded episodes of a random agent run twic
 guardian (the simulator's own step, timed per simulation step) and with it (the guardian's
 supervision, timed inside its per-simulation-step hook). Figures: median and p99 in ms, the
 guardian's median as a share of the simulator's median simulation step, and a whole ``env.step``
-(simulation, observation, reward) with and without the guardian.
+(simulation, observation, reward) with and without the guardian. Then the guarded/unguarded
+``env.step`` ratio measured interleaved (``--steps`` policy steps, 200 by default: a guarded and an
+unguarded env stepped one after the other, the order alternating), which the machine's drift between
+the two runs above does not bias.
 """
 from __future__ import annotations
 
@@ -31,10 +34,12 @@ from envs.agents import make_agent
 from guardian.rollout import OVERTAKE_ENV, highway_env_config
 from guardian.wrapper import Guardian
 from intention.library import build_library
+from intention.params import OvertakeParams
 
 DENSE = {"lanes_count": 5, "vehicles_count": 80}  # issue 12's dense configuration
 CASES = [(OVERTAKE_ENV, "continuous", None), (OVERTAKE_ENV, "meta", None), ("highway-v0", "meta", None),
-         ("highway-v0", "continuous", None), ("highway-v0", "meta", DENSE), ("highway-v0", "continuous", DENSE)]
+         ("highway-v0", "continuous", None), ("highway-v0", "meta", DENSE), ("highway-v0", "continuous", DENSE),
+         ("highway-fast-v0", "meta", None), ("highway-fast-v0", "continuous", None)]  # what RL users train on
 
 
 def _timed_sim(env, episodes: int, guarded: bool):
@@ -54,8 +59,9 @@ def _timed_sim(env, episodes: int, guarded: bool):
 
             def timed(*a, _f=original):
                 t = time.perf_counter()
-                _f(*a)
+                out = _f(*a)
                 hook_times.append(time.perf_counter() - t)
+                return out  # the decision, which the wrapper records
             setattr(env, name, timed)
     step_times = []
     for ep in range(episodes):
@@ -72,8 +78,40 @@ def _timed_sim(env, episodes: int, guarded: bool):
     return np.array(base_times), np.array(hook_times), np.array(step_times)
 
 
-def bench(episodes: int) -> dict:
-    library = build_library(quiet=True, workers=2)
+def _interleaved(env_id: str, cfg: dict, library, steps: int) -> dict:
+    """``env.step`` with and without the guardian, one after the other (the order alternating) for
+    ``steps`` policy steps of the same random agent, so that the machine's drift hits both alike."""
+    free = gym.make(env_id, config=cfg)
+    guarded = Guardian(gym.make(env_id, config=cfg), library)
+    times = {"free": [], "guarded": []}
+    envs_ = {"free": free, "guarded": guarded}
+    state = {}
+    for name, env in envs_.items():
+        obs, _ = env.reset(seed=0)
+        state[name] = [obs, make_agent("random", env, np.random.default_rng(0)), 0]
+    for k in range(steps):
+        for name in (("free", "guarded") if k % 2 == 0 else ("guarded", "free")):
+            env, (obs, agent, episode) = envs_[name], state[name]
+            action = agent(obs)
+            t = time.perf_counter()
+            obs, _, term, trunc, _ = env.step(action)
+            times[name].append(time.perf_counter() - t)
+            if term or trunc:
+                episode += 1
+                obs, _ = env.reset(seed=episode)
+                agent = make_agent("random", env, np.random.default_rng(episode))
+            state[name] = [obs, agent, episode]
+    free.close()
+    guarded.close()
+    f, g = np.array(times["free"]), np.array(times["guarded"])
+    return {"interleaved_steps": steps, "interleaved_env_step_ms_median": round(1e3 * np.median(f), 3),
+            "interleaved_guarded_env_step_ms_median": round(1e3 * np.median(g), 3),
+            "interleaved_step_ratio_median": round(float(np.median(g) / np.median(f)), 3),
+            "interleaved_step_ratio_total": round(float(g.sum() / f.sum()), 3)}
+
+
+def bench(episodes: int, steps: int = 200) -> dict:
+    library = build_library(params=OvertakeParams.among_traffic(), quiet=True, workers=2)  # HighwayOvertake's
     out = {}
     for env_id, action, extra in CASES:
         cfg = highway_env_config(env_id, action, "cautious", "random", None, library, extra)
@@ -89,6 +127,7 @@ def bench(episodes: int) -> dict:
             "guardian_ms_median": round(1e3 * np.median(hook), 3),
             "guardian_ms_p99": round(1e3 * np.percentile(hook, 99), 3),
             "guardian_share_of_sim_step": round(float(np.median(hook)) / float(np.median(free)), 3),
+            **_interleaved(env_id, cfg, library, steps),
         }
     return out
 
@@ -107,9 +146,10 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--episodes", type=int, default=3)
+    ap.add_argument("--steps", type=int, default=200, help="policy steps of the interleaved step-ratio measurement")
     ap.add_argument("--before", default=None, help="an older commit to measure beside this checkout")
     args = ap.parse_args()
-    res = bench(args.episodes)
+    res = bench(args.episodes, args.steps)
     if args.before:
         for k, v in before(args.before, args.episodes).items():
             res[f"before {args.before}: {k}"] = v
@@ -117,10 +157,13 @@ def main() -> None:
         print(json.dumps(res, indent=2))
         return
     for k, v in res.items():
+        ratio = "" if "interleaved_steps" not in v else (
+            f" | interleaved ({v['interleaved_steps']} steps) guarded/unguarded step "
+            f"{v['interleaved_step_ratio_median']:.3f}x median, {v['interleaved_step_ratio_total']:.3f}x total")
         print(f"{k:80s} sim step {v['simulator_step_ms_median']:.2f} ms | guardian median "
               f"{v['guardian_ms_median']:.3f} ms p99 {v['guardian_ms_p99']:.3f} ms | share "
               f"{100 * v['guardian_share_of_sim_step']:.1f} % | env.step {v['env_step_ms_median']:.2f} ms "
-              f"-> {v['guarded_env_step_ms_median']:.2f} ms guarded")
+              f"-> {v['guarded_env_step_ms_median']:.2f} ms guarded{ratio}")
 
 
 if __name__ == "__main__":

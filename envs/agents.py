@@ -1,8 +1,9 @@
 """The one registry of agents: every driver of every environment, for either action type.
 
 Every agent is built as ``make_agent(name, env, rng)`` and called as ``agent(obs) -> action`` in the
-environment's own action space: a highway-env ``DiscreteMetaAction`` or ``ContinuousAction``
-(normalised to ``[-1, 1]``), or any other ``Box`` (``random`` and ``idle`` only).
+environment's own action space: a highway-env ``DiscreteMetaAction``, ``ContinuousAction`` (the axes it
+controls, normalised to ``[-1, 1]``) or ``DiscreteAction`` (the nearest point of its grid), or any other
+``Box`` (``random`` and ``idle`` only).
 
 * ``random``: uniform in the action space (meta: one of the five actions);
 * ``reckless``: meta: changes lanes whenever it can, alternating sides, else FASTER;
@@ -45,9 +46,20 @@ def _meta_names(env) -> list:
 
 
 def _continuous(env, throttle: float, steer: float):
-    """An action at fractions ``throttle, steer`` in ``[-1, 1]`` of the env's continuous range."""
-    if _kind(env) == "ContinuousAction":
-        return np.array([throttle, steer], dtype=np.float32)
+    """An action at fractions ``throttle, steer`` in ``[-1, 1]`` of the env's continuous range: the axes the
+    action type controls (highway-env's ``ContinuousAction``), or the nearest point of a ``DiscreteAction``
+    grid (its index: the first axis varies slowest, as ``itertools.product``)."""
+    kind = _kind(env)
+    if kind in ("ContinuousAction", "DiscreteAction"):
+        at = env.unwrapped.action_type
+        values = [throttle] * at.longitudinal + [steer] * at.lateral
+        if kind == "ContinuousAction":
+            return np.array(values, dtype=np.float32)
+        grid = np.linspace(-1.0, 1.0, at.actions_per_axis)
+        index = 0
+        for v in values:
+            index = index * at.actions_per_axis + int(np.argmin(np.abs(grid - v)))
+        return index
     space = env.action_space
     mid, half = (space.high + space.low) / 2, (space.high - space.low) / 2
     return (mid + half * np.array([throttle, steer])).astype(space.dtype)
@@ -58,7 +70,7 @@ class RandomAgent:
         self.space, self.rng, self.kind = env.action_space, rng, _kind(env)
 
     def __call__(self, obs):
-        if self.kind == "DiscreteMetaAction":
+        if hasattr(self.space, "n"):  # DiscreteMetaAction, DiscreteAction
             return int(self.rng.integers(self.space.n))
         return self.rng.uniform(self.space.low, self.space.high).astype(self.space.dtype)
 
@@ -86,6 +98,8 @@ class IdleAgent:
     def __call__(self, obs):
         if self.kind == "DiscreteMetaAction":
             return _meta_names(self.env).index("IDLE")
+        if self.kind in ("ContinuousAction", "DiscreteAction"):
+            return _continuous(self.env, 0.0, 0.0)
         return np.clip(np.zeros(2), self.env.action_space.low, self.env.action_space.high).astype(
             self.env.action_space.dtype)
 
@@ -268,6 +282,19 @@ BASELINES = ("mpc", "bad", "careful", "random")
 ADVERSARIES = ("seek", "brake_check", "oscillate", "hold", "trap")  # need a highway-env road
 
 
+def _algorithm_of(data: dict) -> str | None:
+    """The stable-baselines3 algorithm of a saved model's data: its policy class's module names it
+    (``stable_baselines3.<algo>.policies``; DDPG's are TD3's, which loads it alike), except PPO's and A2C's,
+    which share ``stable_baselines3.common.policies``: PPO saves its ``clip_range``, A2C has none."""
+    module = getattr(data.get("policy_class"), "__module__", "") or ""
+    parts = module.split(".")
+    if len(parts) < 2 or parts[0] != "stable_baselines3":
+        return None
+    if parts[1] == "common":
+        return "PPO" if "clip_range" in data else "A2C"
+    return parts[1]
+
+
 class PolicyAgent:
     """A stable-baselines3 policy file (``policy:PATH``), acting deterministically on the observation.
 
@@ -289,6 +316,9 @@ class PolicyAgent:
         self.model = self.load(path, algo)
         if self.model.action_space != env.action_space:
             raise ValueError(f"the policy {path} acts in {self.model.action_space}, the env in {env.action_space}")
+        if self.model.observation_space != env.observation_space:
+            raise ValueError(f"the policy {path} observes {self.model.observation_space}, the env gives "
+                             f"{env.observation_space} (its config's 'observation' differs)")
 
     @classmethod
     def load(cls, path: str, algo: str | None = None):
@@ -304,10 +334,8 @@ class PolicyAgent:
                 from stable_baselines3.common.save_util import load_from_zip_file
             except ImportError:
                 raise ValueError("a --policy needs stable-baselines3: pip install 'guardian[rl]'") from None
-            if algo is None:  # the policy class's module names the algorithm: stable_baselines3.<algo>.policies
-                data = load_from_zip_file(file, device="cpu")[0]
-                module = getattr(data.get("policy_class"), "__module__", "")
-                algo = module.split(".")[1] if module.startswith("stable_baselines3.") else None
+            if algo is None:
+                algo = _algorithm_of(load_from_zip_file(file, device="cpu")[0])
                 if algo is None:
                     raise ValueError(f"cannot tell the algorithm of {path}; name it (--algo DQN, PPO, ...)")
             model_class = getattr(stable_baselines3, algo.upper(), None)

@@ -56,6 +56,12 @@ class OvertakeStateObservation(ObservationType):
     def observe(self) -> np.ndarray:
         return self.env.overtake_state()
 SUPPORTED_ACTIONS = ("ContinuousAction", "DiscreteAction", "DiscreteMetaAction")
+# highway-env's observation types this env offers (``MultiAgentObservation``: one tuple entry, the ego's)
+OBSERVATIONS = ("Kinematics", "OccupancyGrid", "TimeToCollision", "LidarObservation", "GrayscaleObservation",
+                "AttributesObservation", "MultiAgentObservation", "TupleObservation", OVERTAKE_STATE)
+REFUSED_OBSERVATIONS = {"KinematicsGoal": "it observes a goal (parking-v0's); this scenario has none",
+                        "ExitObservation": "it observes exit-v0's exit lane; this road has none"}
+ATTRIBUTES = ("state",)  # what AttributesObservation may read: the overtake state x
 
 
 class HighwayOvertakeEnv(AbstractEnv):
@@ -144,6 +150,7 @@ class HighwayOvertakeEnv(AbstractEnv):
             raise ConfigError(f"HighwayOvertake: config 'lanes_count' must be at least 2, got {c['lanes_count']}")
         if not (0 <= c["traffic_from_behind"] <= c["traffic_count"]):
             raise ConfigError("HighwayOvertake: config 'traffic_from_behind' must be between 0 and 'traffic_count'")
+        self._validate_observation(c["observation"], top=True)
         action = c["action"]
         kind = action.get("type")
         if kind not in SUPPORTED_ACTIONS:
@@ -155,6 +162,25 @@ class HighwayOvertakeEnv(AbstractEnv):
                 if lo < bounds[0] or hi > bounds[1]:
                     raise ConfigError(f"HighwayOvertake: config 'action.{key}' is {action.get(key)}; it must lie "
                                       f"in U_e = {list(bounds)} (the model's input bounds)")
+
+    def _validate_observation(self, obs: dict, top: bool) -> None:
+        kind = obs.get("type")
+        if kind in REFUSED_OBSERVATIONS:
+            raise ConfigError(f"HighwayOvertake: config 'observation.type' {kind!r} is not supported: "
+                              f"{REFUSED_OBSERVATIONS[kind]}")
+        if kind not in OBSERVATIONS or (kind == OVERTAKE_STATE and not top):
+            raise ConfigError(f"HighwayOvertake: config 'observation.type' {kind!r} is not supported; use one of "
+                              f"{OBSERVATIONS} ({OVERTAKE_STATE!r} only as the observation itself)")
+        if kind == "AttributesObservation":
+            wrong = [a for a in obs.get("attributes", []) if a not in ATTRIBUTES]
+            if wrong or not obs.get("attributes"):
+                raise ConfigError(f"HighwayOvertake: config 'observation.attributes' {obs.get('attributes')!r}: "
+                                  f"the attributes this env offers are {list(ATTRIBUTES)} (the overtake state x)")
+        if kind == "MultiAgentObservation":
+            self._validate_observation(obs.get("observation_config", {}), top=False)
+        if kind == "TupleObservation":
+            for inner in obs.get("observation_configs", []):
+                self._validate_observation(inner, top=False)
 
     def define_spaces(self) -> None:
         """highway-env's observation and action types, and ``OvertakeState`` (the state ``x`` itself)."""
@@ -230,6 +256,11 @@ class HighwayOvertakeEnv(AbstractEnv):
         """``x = [v_ex, y_e, h, v_Lx]`` read from the vehicles."""
         ego = self.vehicle
         return np.array([ego.speed, ego.y_e, self.lead.position[0] - ego.position[0], self.lead.speed])
+
+    @property
+    def state(self) -> np.ndarray:
+        """The overtake state ``x`` as an attribute (``AttributesObservation`` with ``attributes: ["state"]``)."""
+        return self.overtake_state()
 
     def _simulate(self, action=None) -> None:
         if action is not None and not self.config["manual_control"]:

@@ -85,6 +85,7 @@ class OvertakeEgo(BodyContact, Vehicle):
     LENGTH = CAR_LENGTH
     WIDTH = CAR_WIDTH
     SPEED_GAIN = 1.0      # [1/s] meta actions: speed tracking
+    route = None          # one straight road, no route to plan (highway-env's observations read it)
     LATERAL_GAIN = 2.0    # [1/s] meta actions: lateral tracking
 
     def __init__(self, road, position, speed: float, params: OvertakeParams, y_origin: float,
@@ -94,7 +95,7 @@ class OvertakeEgo(BodyContact, Vehicle):
         self.y_origin = float(y_origin)        # simulator y of the right-lane centre (y_e = 0)
         self.lateral_scale = float(lateral_scale)  # metres per unit of y_e (simulator y grows to the right)
         self.target_speeds = np.asarray(target_speeds, dtype=float)
-        self.target_speed_index = int(np.argmin(np.abs(self.target_speeds - speed)))
+        self.target_speed_index = self.speed_to_index(speed)
         self.target_y = 0.0
         self.meta = None          # the last meta action, or None for continuous commands
         self.command = np.zeros(2)  # the decoded (a_ex, v_ey) before any supervision
@@ -117,6 +118,21 @@ class OvertakeEgo(BodyContact, Vehicle):
     def input(self) -> np.ndarray:
         """The input ``u_e = [a_ex, v_ey]`` this step will apply (after any supervision)."""
         return np.array([float(self.action["acceleration"]), float(self.action["steering"])])
+
+    # ---- the target speeds as highway-env's MDPVehicle offers them (observations read them) ----------------
+    @property
+    def speed_index(self) -> int:
+        """The index in ``target_speeds`` the ego tracks: the meta actions' target, or, under continuous
+        commands, the target speed nearest to the present speed (``TimeToCollision`` reads it)."""
+        return self.target_speed_index if self.meta is not None else self.speed_to_index(self.speed)
+
+    def index_to_speed(self, index: int) -> float:
+        """[m/s] the target speed of ``index``."""
+        return float(self.target_speeds[index])
+
+    def speed_to_index(self, speed: float) -> int:
+        """The index of the target speed nearest to ``speed`` (the rule the meta actions start from)."""
+        return int(np.argmin(np.abs(self.target_speeds - speed)))
 
     # ---- actions ---------------------------------------------------------------------------
     def act(self, action=None) -> None:

@@ -181,16 +181,22 @@ class BicycleGuardian:
         """The steering nearest to the proposal whose path enters no lane irresponsibly."""
         kin = self.kin
         for k, steer in enumerate(kin.steering_candidates(proposed, ego.heading)):
+            why = f"steering {proposed:.3f} rad refused: " if k == 0 else ""  # only the proposal's refusal is said
             y1, h1 = kin.predict(ego.y, ego.heading, ego.speed, steer)
             if abs(h1) > kin.MAX_HEADING and abs(h1) > abs(ego.heading):
+                d.note(why and why + f"the heading would reach {abs(h1):.3f} rad (bound {kin.MAX_HEADING} rad)")
                 continue
             lanes, depth = kin.path_lanes(ego.y, ego.heading, ego.speed, steer)
             if depth > kin.off_road_depth(ego.y, ego.heading) + 1e-9:
+                d.note(why and why + "the body would leave the road before its heading is straightened")
                 continue  # leaves the road, or further than it already is
             new = lanes - now
             entry = [(0.0, np.inf)]
             if new:
                 if k > 0 or len(now) != 1 or len(new) != 1:
+                    d.note(why and why + (f"it would enter lanes {sorted(self.itha_lane(i) for i in new)} at once"
+                                          if len(now) == 1 else "it would enter another lane while the body "
+                                          f"straddles lanes {sorted(self.itha_lane(i) for i in now)}"))
                     continue
                 entry = self._entry(ego, scene, now, next(iter(new)), d)
                 if entry is None:

@@ -182,7 +182,7 @@ class PointMassGuardian:
         elif self.home not in lanes:
             self.home = min(lanes, key=lambda k: abs(self.kin.centre(k) - x[1]))
         d = Decision(proposed=u.tolist(), applied=[], changed="none", active_set=view.name)
-        parts = self._parts(x, scene, lanes, view, d)
+        parts = self._parts(x, scene, lanes, view, d, float(u[1]))
         applied = self._choose(x, u, lanes, view, parts, d)
         d.applied = applied.tolist()
         d.entered = sorted(self.kin.next_lanes(x[1], applied[1]) - lanes)
@@ -208,9 +208,10 @@ class PointMassGuardian:
             d.admissible_acceleration, d.admissible_lateral = q.ranges(0, applied[1]), q.ranges(1, applied[0])
         return applied, d
 
-    def _parts(self, x, scene: Scene, lanes: frozenset, view, d: Decision) -> list[_Part]:
+    def _parts(self, x, scene: Scene, lanes: frozenset, view, d: Decision, u_lateral: float) -> list[_Part]:
         p, kin = self.params, self.kin
         v, y, h, vL = (float(a) for a in x)
+        proposed_new = kin.next_lanes(y, u_lateral) - lanes  # a refusal is said when the proposal would enter
         full = [(0.0, math.inf)]
         self_cache, follower_cache, entries = {}, {}, {}
         parts = []
@@ -228,7 +229,8 @@ class PointMassGuardian:
                     d.entries.append(Entry(lane, verdict.responsible, verdict.reason))
                 verdict = entries[lane]
                 if not verdict.responsible:
-                    d.note(f"entering lane {lane} refused: {verdict.reason}")
+                    if lane in proposed_new:
+                        d.note(f"entering lane {lane} refused: {verdict.reason}")
                     continue
                 entry = verdict.speeds
             if occupied not in self_cache:

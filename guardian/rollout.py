@@ -153,13 +153,22 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
 
     import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
     import highway_env  # noqa: F401 - registers the highway-env environments
+    from guardian.errors import ConfigError
     from guardian.wrapper import Guardian, GuardianConfig
 
     overtake = env_id in OVERTAKE_ENVS
     config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config)
     if video_dir:  # SDL's offscreen driver: no display is looked for (and no XDG_RUNTIME_DIR error)
         os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
+    try:
+        env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
+    except ConfigError:
+        raise
+    except Exception as exc:  # highway-env's own failure on a config it cannot take: name the keys given
+        if not env_config:
+            raise
+        raise ConfigError(f"{env_id} cannot be made with the config {sorted(env_config)} given "
+                          f"({type(exc).__name__}: {exc})") from exc
     if video_dir:  # highway-env's default ratio (2) makes videos play at double speed
         env.unwrapped.update_metadata(video_real_time_ratio=1)
     if guardian:

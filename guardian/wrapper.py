@@ -17,7 +17,8 @@ not see are counted (``unsupervised_steps``).
 ``info["guardian"]`` (the key is asserted free)::
 
     {"proposed": [a, lateral] | "LANE_LEFT" ...,  # the agent's action (decoded for continuous agents)
-     "applied": [a, lateral] | "IDLE" ...,         # what the vehicle received (last simulation step)
+     "applied": [a, lateral] | "IDLE" ...,         # the input of the last simulation step; meta: the action
+                                                   # executed over the policy step (applied_action's name)
      "applied_action": int | [float, ...],        # the policy step as an action of the env's space
      "applied_mean": [a, lateral], "applied_range": [[lo, hi], [lo, hi]],   # over the simulation steps
      "overridden": bool,               # any change to the agent's action
@@ -106,7 +107,8 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env, library=None, config: GuardianConfig | None = None):
-        gym.utils.RecordConstructorArgs.__init__(self, library=library, config=config)
+        # recorded as given (env.spec): the library's sets are read-only and large, the config is frozen
+        gym.utils.RecordConstructorArgs.__init__(self, library=library, config=config, _disable_deepcopy=True)
         super().__init__(env)
         config = GuardianConfig() if config is None else config
         base = env.unwrapped
@@ -381,9 +383,11 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         refused = bool(self._refused_meta) or any(d.refused for d in ds)
         if refused and changed in ("none", "steering"):
             changed = "lane_change" if self.kind == "DiscreteMetaAction" else changed
+        inputs = np.array([d.applied for d in ds], dtype=float).reshape(-1, 2)
+        applied_action = self._applied_action(base, proposed, ds, inputs)
         applied = proposed
-        if self.kind == "DiscreteMetaAction":
-            applied = "IDLE" if self._refused_meta else proposed
+        if self.kind == "DiscreteMetaAction":  # the meta action executed over the whole policy step
+            applied = base.action_type.actions[applied_action]
         elif last is not None:
             applied = last.applied
             proposed = last.proposed
@@ -391,9 +395,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         model_clips = sum(d.changed != "none" and d.clipped_to_model for d in ds)
         safety = bool(clipped - model_clips or refused)
         lead = getattr(self.guard, "lead", None)
-        inputs = np.array([d.applied for d in ds], dtype=float).reshape(-1, 2)
-        out = {"proposed": proposed, "applied": applied,
-               "applied_action": self._applied_action(base, proposed, ds, inputs),
+        out = {"proposed": proposed, "applied": applied, "applied_action": applied_action,
                "applied_mean": inputs.mean(axis=0).tolist() if len(ds) else [],
                "applied_range": [[float(inputs[:, k].min()), float(inputs[:, k].max())] for k in range(2)]
                if len(ds) else [],

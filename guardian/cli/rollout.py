@@ -105,20 +105,30 @@ def _inapplicable(args, overtake: bool) -> str | None:
 
 
 def env_config_option(env_id: str, pairs: list) -> dict:
-    """``KEY=VALUE`` pairs as the env's config (values read as JSON, else as text); a key the env
-    does not have is refused with its name."""
+    """``KEY=VALUE`` pairs (values read as JSON, else as text) or JSON objects as the env's config, later
+    ones overriding earlier ones; a key the env does not have is refused with its name."""
     known = set(_env_class(env_id).default_config())
     out = {}
     for pair in pairs:
-        key, sep, text = pair.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--env-config takes KEY=VALUE, got {pair!r}")
-        if key not in known:
-            raise ValueError(f"--env-config: {env_id} has no config key {key!r}")
-        try:
-            out[key] = json.loads(text)
-        except json.JSONDecodeError:
-            out[key] = text
+        if pair.lstrip().startswith("{"):
+            try:
+                given = json.loads(pair)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"--env-config: {pair!r} is not a JSON object ({exc})") from None
+            if not isinstance(given, dict):
+                raise ValueError(f"--env-config: {pair!r} is not a JSON object")
+        else:
+            key, sep, text = pair.partition("=")
+            if not sep or not key:
+                raise ValueError(f"--env-config takes KEY=VALUE or a JSON object, got {pair!r}")
+            try:
+                given = {key: json.loads(text)}
+            except json.JSONDecodeError:
+                given = {key: text}
+        for key, value in given.items():
+            if key not in known:
+                raise ValueError(f"--env-config: {env_id} has no config key {key!r}")
+            out[key] = value
     return out
 
 
@@ -161,7 +171,7 @@ def add_commands(sub) -> None:
     p.add_argument("--traffic", type=count(0), default=None,
                    help="other cars (guardian/HighwayOvertake-v0, the highway-v0 family)")
     p.add_argument("--env-config", action="append", metavar="KEY=VALUE", default=None,
-                   help="a config key of the env (the value read as JSON), repeatable")
+                   help="a config key of the env (the value read as JSON), or a JSON object of them; repeatable")
     p.add_argument("--safe-start", action="store_true",
                    help="draw each start again until it lies in the guardian's invariant sets")
     p.add_argument("--intention", type=intention_name, default="cautious",
