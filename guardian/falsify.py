@@ -15,12 +15,18 @@ The matrix (``matrix``):
   env's own, density 2.5, 2 lanes at density 1.5, one lane at density 2.5, policy frequency 5, and
   policy frequency 15 (``highway-fast-v0`` then simulates at 15 Hz too).
 
+The campaign's agents read the simulator, not the observation, so the overtake cells observe the
+overtake state (highway-env's Kinematics table costs 60 % of their step) and ``highway-v0``'s episodes
+last 15 s instead of 40 (its 50 cars at 15 Hz make it five times slower than ``highway-fast-v0``); both
+are part of each cell's config, so the replay command reproduces them.
+
 The counts are ``guardian.rollout.HighwayTally``'s (each by a written rule; the fault judge is
 ``guardian.judge``); ``exceptions`` counts episodes that raised.
 """
 from __future__ import annotations
 
 import json
+import shlex
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -70,7 +76,7 @@ class Cell:
         parts = ["guardian rollout", f"--env {self.env}", f"--agent {self.agent}", f"--action {self.action}"]
         if self.env == OVERTAKE_ENV:
             parts += [f"--intention {self.intention}", f"--disturbance {self.disturbance}", f"--traffic {self.traffic}"]
-        parts += [f"--env-config {k}={v.replace(' ', '')}" for k, v in self.env_config]
+        parts += [f"--env-config {shlex.quote(k + '=' + v.replace(' ', ''))}" for k, v in self.env_config]
         if not self.guardian:
             parts.append("--no-guardian")
         parts += ["--episodes 1", f"--seed {seed}", "--json"]
@@ -92,14 +98,16 @@ def matrix(guardian: bool = True, only: str | None = None) -> list[Cell]:
                 for agent in agents:
                     for intention in ("aggressive", "cautious"):
                         for disturbance in ("random", "adversarial"):
-                            cells.append(_cell(OVERTAKE_ENV, agent, action, setting, config, guardian,
+                            cells.append(_cell(OVERTAKE_ENV, agent, action, setting,
+                                               {**config, "observation": {"type": "OvertakeState"}}, guardian,
                                                intention=intention, disturbance=disturbance, traffic=traffic))
     if only in (None, "highway"):
         for env in ("highway-v0", "highway-fast-v0"):
             for setting, config in HIGHWAY_SETTINGS:
                 for action in ("continuous", "meta"):
                     for agent in ROAD_AGENTS:
-                        cells.append(_cell(env, agent, action, setting, config, guardian))
+                        short = {"duration": 15} if env == "highway-v0" else {}
+                        cells.append(_cell(env, agent, action, setting, {**config, **short}, guardian))
     return cells
 
 

@@ -6,14 +6,40 @@ that each observed transition is the closed-loop PWA dynamics of intention i:
 
     x(k+1) = A_j x(k) + B u_e(k) + c_j + E w(k),   x(k) in D_j,   w(k) in W.
 
-The matrix ``E`` is the same in every piece, so the LP's constraint matrix is
-fixed: one HiGHS model per intention is built once, with a slot of rows per
-step of the horizon, and each update only rewrites the bounds of one slot
-(``x(k+1) - A_j x(k) - B u_e(k) - c_j``) and re-solves. An intention whose LP
-is infeasible is invalidated for good; the valid set never grows (6.9).
+An intention whose LP is infeasible is invalidated for good; the valid set
+never grows (6.9).
+
+How it is decided. The LP's constraint matrix is ``kron(I_N, E)`` and W is a
+box per slot, so the window LP is *separable*: it is feasible iff every slot's
+own LP is. Older slots were decided when they were written (and a failing
+intention is dropped for good), so an update only has to decide the new slot.
+When every disturbance column of ``E`` enters one row at most (the overtake
+models: ``w_ex``, ``w_ey`` each in one row, ``w_Lx`` and ``w_Delta`` both in
+the lead-speed row, none in the headway row), the slot's LP is one interval
+test per row: row r is feasible iff ``[res_r - tol, res_r + tol]`` meets
+``[sum_j min(E_rj lo_j, E_rj hi_j), sum_j max(...)]``. No solver runs.
+
+HiGHS decides the same LP within its feasibility tolerance (1e-7, on its
+scaled model: measured, it accepts a slot up to 1.1e-8 .. 1.1e-7 outside the
+exact interval, depending on the row and on its warm start), so the interval
+test alone would disagree with it just outside the boundary. Hence three cases:
+
+* inside the exact interval: feasible (HiGHS finds the same point);
+* more than ``LP_BAND`` (1e-6) outside: infeasible (beyond any tolerance HiGHS
+  applies here; ``tests/test_estimator.py`` measures HiGHS' threshold on each
+  row and side);
+* in between: the window LP decides, exactly as before (one HiGHS model per
+  thread and model shape, shared by every estimator, solved from a cleared
+  state), and while such a slot stays in the window every update is decided by
+  the window LP, as the old estimator re-solved it at each step.
+
+A model whose ``E`` has a column in two rows is always decided by the window
+LP. Either way no estimator owns a solver: an estimator keeps its last N
+residuals per intention (a few hundred bytes).
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import highspy
@@ -25,6 +51,9 @@ from rcis.validate import finite_vector
 
 INF = highspy.kHighsInf
 OBSERVATION_TOL = 1e-9  # equality slack for rounding in the observed states
+LP_BAND = 1e-6  # a slot this far outside its exact interval, or less, goes to the LP (HiGHS' tolerance)
+_SHARED = threading.local()  # per thread: window LPs keyed by model shape (see _shared_lp)
+_SHARED_MAX = 64
 
 
 class _SlidingFeasibilityLP:
@@ -68,8 +97,11 @@ class _SlidingFeasibilityLP:
         self._lower[s] = residual - self.tol
         self._upper[s] = residual + self.tol
 
-    def feasible(self) -> bool:
+    def feasible(self, fresh: bool = False) -> bool:
+        """Solve with the bounds written; ``fresh`` first drops HiGHS' basis (a history-free answer)."""
         self._h.changeRowsBounds(len(self._rows), self._rows, self._lower, self._upper)
+        if fresh:
+            self._h.clearSolver()
         self._h.run()
         status = self._h.getModelStatus()
         if status == highspy.HighsModelStatus.kOptimal:
@@ -77,6 +109,49 @@ class _SlidingFeasibilityLP:
         if status == highspy.HighsModelStatus.kInfeasible:
             return False
         raise RuntimeError(f"intention LP ended with {self._h.modelStatusToString(status)}")
+
+
+def _shared_lp(E: np.ndarray, lo: np.ndarray, hi: np.ndarray, horizon: int, tol: float) -> _SlidingFeasibilityLP:
+    """This thread's window LP for one model shape (built once, reused by every estimator)."""
+    pool = getattr(_SHARED, "lps", None)
+    if pool is None:
+        pool = _SHARED.lps = {}
+    key = (E.shape, E.tobytes(), lo.tobytes(), hi.tobytes(), horizon, tol)
+    lp = pool.get(key)
+    if lp is None:
+        if len(pool) >= _SHARED_MAX:
+            pool.pop(next(iter(pool)))
+        lp = pool[key] = _SlidingFeasibilityLP(E, lo, hi, horizon, tol)
+    return lp
+
+
+class _Intention:
+    """One candidate's fixed data: its pieces, ``E``, the box W and (when separable) each row's interval."""
+
+    def __init__(self, name: str, model, tol: float):
+        system = model.system
+        piece = system.pieces[0]
+        self.system = system
+        self.pieces = system.pieces
+        self.E = np.asarray(piece.E, dtype=float)
+        self.lo, self.hi = (np.asarray(v, dtype=float) for v in piece.W._box)
+        self.tol = tol
+        self.rows = None  # (lower, upper) of E w over W per row, when every column is in one row at most
+        if np.all(np.count_nonzero(self.E, axis=0) <= 1):
+            lo_terms, hi_terms = self.E * self.lo, self.E * self.hi
+            lower, upper = np.minimum(lo_terms, hi_terms).sum(axis=1), np.maximum(lo_terms, hi_terms).sum(axis=1)
+            self.rows = list(zip(lower.tolist(), upper.tolist()))
+
+    def residual(self, x: np.ndarray, u: np.ndarray, x_next: np.ndarray) -> np.ndarray:
+        piece = self.pieces[self.system.piece_index(x)]
+        return x_next - (piece.A @ x + piece.B @ u + piece.c)
+
+    def excess(self, r: np.ndarray) -> float:
+        """How far ``[r - tol, r + tol]`` lies outside the rows' intervals (<= 0: feasible exactly)."""
+        tol, worst = self.tol, -np.inf
+        for value, (lower, upper) in zip(r.tolist(), self.rows):  # four rows: plain floats beat numpy here
+            worst = max(worst, lower - (value + tol), (value - tol) - upper)
+        return worst
 
 
 @dataclass
@@ -117,23 +192,22 @@ class IntentionEstimator:
                 raise ValueError(f"intention {name}: the estimator needs one E for all pieces")
             if model.system.pieces[0].W._box is None:
                 raise ValueError(f"intention {name}: the estimator needs a box disturbance set")
-        self._lps = {}
+        self._candidates = {name: _Intention(name, model, self.tol) for name, model in self.models.items()}
         self.reset()
 
     def reset(self) -> None:
-        """Forget the history: every intention is valid again (the LP models are kept)."""
+        """Forget the history: every intention is valid again."""
         self.valid = list(self.models)
         self.steps = 0
         self.identified_at = None
-        for name, model in self.models.items():
-            if name not in self._lps:
-                piece = model.system.pieces[0]
-                lo, hi = (np.asarray(v) for v in piece.W._box)
-                self._lps[name] = _SlidingFeasibilityLP(piece.E, lo, hi, self.horizon, self.tol)
-            self._lps[name].clear()
+        # per intention: the window's residuals (slot = step mod N) and the step until which a
+        # slot decided inside HiGHS' tolerance band is in the window (the window LP decides until then)
+        self._window = {name: np.zeros((self.horizon, c.E.shape[0])) for name, c in self._candidates.items()}
+        self._lp_until = dict.fromkeys(self._candidates, 0)
+        self.lp_solves = 0  # window LPs solved (boundary cases and non-separable models), for tests
 
     def update(self, x, u_e, x_next) -> EstimatorUpdate:
-        """Add the transition ``(x(t), u_e(t)) -> x(t+1)`` and re-solve LP_i for the valid i.
+        """Add the transition ``(x(t), u_e(t)) -> x(t+1)`` and decide LP_i for the valid i.
 
         Parameters
         ----------
@@ -152,12 +226,8 @@ class IntentionEstimator:
         slot = self.steps % self.horizon
         self.steps += 1
         invalidated = []
-        for name in list(self.valid):
-            system = self.models[name].system
-            piece = system.pieces[system.piece_index(x)]
-            lp = self._lps[name]
-            lp.write_slot(slot, x_next - piece.image(x, u_e))
-            if not lp.feasible():
+        for name in self.valid:
+            if not self._feasible(name, slot, x, u_e, x_next):
                 invalidated.append(name)
         # (6.9) keeps an identified intention for good; we keep checking it, so a lead that
         # fits no model empties the valid set (the guardian then falls back to C_bnd).
@@ -167,3 +237,26 @@ class IntentionEstimator:
             self.identified_at = self.steps
         return EstimatorUpdate(tuple(self.valid), tuple(invalidated),
                                self.valid[0] if len(self.valid) == 1 else None)
+
+    def _feasible(self, name: str, slot: int, x, u_e, x_next) -> bool:
+        c = self._candidates[name]
+        r = c.residual(x, u_e, x_next)
+        self._window[name][slot] = r
+        if c.rows is not None and self.steps > self._lp_until[name]:
+            excess = c.excess(r)
+            if excess <= 0.0:
+                return True
+            if excess > LP_BAND:
+                return False
+            self._lp_until[name] = self.steps + self.horizon - 1  # this slot leaves the window then
+        return self._window_lp(name)
+
+    def _window_lp(self, name: str) -> bool:
+        """The window LP of ``name`` over the transitions written so far, solved from a cleared state."""
+        c = self._candidates[name]
+        lp = _shared_lp(c.E, c.lo, c.hi, self.horizon, self.tol)
+        lp.clear()
+        for k in range(min(self.steps, self.horizon)):
+            lp.write_slot(k, self._window[name][k])
+        self.lp_solves += 1
+        return lp.feasible(fresh=True)

@@ -255,7 +255,7 @@ class AdmissibleQuery:
         iv = _kernels.line_intervals(self.G, self.r, self.starts, axis, float(value),
                                      self.owner.u_lower, self.owner.u_upper)
         keep = iv[:, 0] <= iv[:, 1]
-        return sorted((float(a), float(b)) for a, b in iv[keep])
+        return sorted(map(tuple, iv[keep].tolist()))  # the same float pairs, 5x faster than a generator
 
 
 def _in_polygon(P: np.ndarray, u: np.ndarray, tol: float = 1e-12) -> bool:

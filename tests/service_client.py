@@ -27,7 +27,7 @@ class Raw:
         """The next response as (status, headers dict, parsed JSON or raw bytes), or None on a clean close."""
         status, headers, body = None, {}, b""
         if self.conn.our_state is h11.IDLE:  # the request went out as raw bytes: tell h11 one was sent
-            self.conn.send(h11.Request(method="GET", target="/", headers=[("host", "guardian")]))
+            self.conn.send(h11.Request(method="GET", target="/", headers=[("host", "localhost")]))
             self.conn.send(h11.EndOfMessage())
         while True:
             event = self.conn.next_event()
@@ -55,12 +55,22 @@ class Raw:
                 return status, headers, parsed
 
     def request(self, method: str, path: str, body=None, headers: dict | None = None):
-        """Send one well-formed request through h11 and read its response."""
+        """Send one well-formed request through h11 and read its response.
+
+        ``Host: localhost`` (the service refuses other names on loopback) and, with a body,
+        ``Content-Type: application/json`` unless ``headers`` says otherwise (a None value drops a field).
+        """
         data = b"" if body is None else (body if isinstance(body, bytes) else json.dumps(body).encode())
-        h = [("host", "guardian"), ("content-length", str(len(data)))]
-        h += list((headers or {}).items())
-        self.sock.sendall(self.conn.send(h11.Request(method=method, target=path, headers=h)))
-        self.sock.sendall(self.conn.send(h11.Data(data=data)) + self.conn.send(h11.EndOfMessage()))
+        given = {k.lower(): v for k, v in (headers or {}).items()}
+        base = {"host": "localhost", "content-length": str(len(data))}
+        if body is not None:
+            base["content-type"] = "application/json"
+        h = [(k, v) for k, v in {**base, **given}.items() if v is not None]
+        try:
+            self.sock.sendall(self.conn.send(h11.Request(method=method, target=path, headers=h)))
+            self.sock.sendall(self.conn.send(h11.Data(data=data)) + self.conn.send(h11.EndOfMessage()))
+        except BrokenPipeError:  # the server answered and closed before reading it all: read the answer
+            pass
         return self.response()
 
     def closed(self, timeout: float = 5.0) -> bool:
@@ -83,3 +93,22 @@ def call(address, method: str, path: str, body=None, headers: dict | None = None
         return raw.request(method, path, body, headers)
     finally:
         raw.close()
+
+
+JSON = {"content-type": "application/json"}
+
+
+def create(target, settings=None, headers: dict | None = None) -> tuple[str, str]:
+    """A new session on ``target`` (an address or a Raw connection): ``(id, secret)``."""
+    status, _, body = (target.request if isinstance(target, Raw) else
+                       lambda *a: call(target, *a))("POST", "/sessions", settings or {}, headers or {})
+    assert status == 201, body
+    return body["session"], body["secret"]
+
+
+def secret_header(secret: str, **more) -> dict:
+    return {"session-secret": secret, **more}
+
+
+def step(seq: int, state, u) -> dict:
+    return {"seq": seq, "state": list(state), "input": list(u)}

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from service_client import Raw, call
+from service_client import Raw, call, create, secret_header, step
 from websockets.sync.client import connect as ws_connect
 
 from guardian.service import Limits, ServiceConfig, ServiceThread
@@ -30,11 +30,11 @@ def service(library):
         yield svc
 
 
-def step_inputs(seed: int, n: int) -> list:
+def step_inputs(seed: int, n: int, first: int = 0) -> list:
     rng = np.random.default_rng(seed)
-    return [{"state": [float(rng.uniform(18, 32)), float(rng.uniform(-0.8, 2.6)), float(rng.uniform(-60, 80)),
-                       float(rng.uniform(10, 33))],
-             "input": [float(rng.uniform(-3, 3)), float(rng.uniform(-1.8, 1.8))]} for _ in range(n)]
+    return [step(first + k, [float(rng.uniform(18, 32)), float(rng.uniform(-0.8, 2.6)), float(rng.uniform(-60, 80)),
+                             float(rng.uniform(10, 33))], [float(rng.uniform(-3, 3)), float(rng.uniform(-1.8, 1.8))])
+            for k in range(n)]
 
 
 def assert_answer_is_clean(answer) -> None:
@@ -69,10 +69,11 @@ FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=list(Heal
 @FUZZ
 @given(body=bodies)
 def test_fuzzed_step_bodies_get_a_json_answer_never_a_5xx(service, body):
-    answer = fuzz_request(service, "POST", f"/sessions/{fuzz_session(service)}/step", body)
+    sid, secret = fuzz_session(service)
+    answer = fuzz_request(service, "POST", f"/sessions/{sid}/step", body, secret_header(secret))
     assert answer is not None
     assert_answer_is_clean(answer)
-    assert answer[0] in (200, 400, 413, 422), answer
+    assert answer[0] in (200, 400, 409, 413, 422), answer  # 409: a valid body whose seq is not the next
 
 
 @FUZZ
@@ -82,7 +83,8 @@ def test_fuzzed_session_bodies_get_a_json_answer_never_a_5xx(service, body):
     assert_answer_is_clean(answer)
     assert answer[0] in (201, 400, 413, 422), answer
     if answer[0] == 201:
-        assert fuzz_request(service, "DELETE", f"/sessions/{answer[2]['session']}")[0] == 200
+        assert fuzz_request(service, "DELETE", f"/sessions/{answer[2]['session']}", None,
+                            secret_header(answer[2]["secret"]))[0] == 200
 
 
 _fuzz_state = {}
@@ -95,24 +97,25 @@ def fuzz_conn(service) -> Raw:
     return _fuzz_state["conn"]
 
 
-def fuzz_request(service, method, path, body=None):
+def fuzz_request(service, method, path, body=None, headers=None):
     """On the shared connection; a new one only after the server said ``Connection: close``."""
-    answer = fuzz_conn(service).request(method, path, body)
+    answer = fuzz_conn(service).request(method, path, body, headers)
     if answer is not None and answer[1].get("connection") == "close":
         _fuzz_state.pop("conn").close()
     return answer
 
 
-def fuzz_session(service) -> str:
+def fuzz_session(service) -> tuple[str, str]:
     if "sid" not in _fuzz_state:
-        _fuzz_state["sid"] = fuzz_request(service, "POST", "/sessions", {})[2]["session"]
+        created = fuzz_request(service, "POST", "/sessions", {})[2]
+        _fuzz_state["sid"] = (created["session"], created["secret"])
     return _fuzz_state["sid"]
 
 
 # ---- fuzz: framing -------------------------------------------------------------------------------
 
 def _framed(body: bytes, mode: str, length, chunk_sizes) -> bytes:
-    head = b"POST /sessions HTTP/1.1\r\nHost: x\r\n"
+    head = b"POST /sessions HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
     if mode == "length":
         length = length if isinstance(length, bytes) else str(length).encode()
         return head + b"Content-Length: " + length + b"\r\n\r\n" + body
@@ -146,7 +149,7 @@ def test_fuzzed_framing_is_answered_or_closed_cleanly_and_partial_requests_never
     assert_answer_is_clean(answer)
     created = answer is not None and answer[0] == 201
     if created:
-        call(service.address, "DELETE", f"/sessions/{answer[2]['session']}")
+        call(service.address, "DELETE", f"/sessions/{answer[2]['session']}", None, secret_header(answer[2]["secret"]))
     raw.close()
     assert live_sessions(service) == before  # nothing created that was not answered
 
@@ -165,10 +168,10 @@ def test_200_concurrent_clients_are_all_served(service):
         try:
             barrier.wait(10)
             raw = Raw(service.address, timeout=30)
-            sid = raw.request("POST", "/sessions", {})[2]["session"]
+            sid, secret = create(raw)
             for body in step_inputs(i, 5):
-                assert raw.request("POST", f"/sessions/{sid}/step", body)[0] == 200
-            assert raw.request("DELETE", f"/sessions/{sid}")[0] == 200
+                assert raw.request("POST", f"/sessions/{sid}/step", body, secret_header(secret))[0] == 200
+            assert raw.request("DELETE", f"/sessions/{sid}", None, secret_header(secret))[0] == 200
             raw.close()
             done.append(i)
         except Exception as exc:  # noqa: BLE001 - every failure is counted
@@ -196,38 +199,41 @@ def test_soak_no_leaks_and_sessions_do_not_disturb_each_other(service):
     url = f"ws://{service.address[0]}:{service.address[1]}"
     reference = {}
     for seed in range(8):  # the records of each input sequence, stepped alone
-        sid = call(service.address, "POST", "/sessions", {})[2]["session"]
-        reference[seed] = [call(service.address, "POST", f"/sessions/{sid}/step", b)[2] for b in step_inputs(seed, 12)]
-        call(service.address, "DELETE", f"/sessions/{sid}")
+        sid, secret = create(service.address)
+        reference[seed] = [call(service.address, "POST", f"/sessions/{sid}/step", b, secret_header(secret))[2]
+                           for b in step_inputs(seed, 12)]
+        call(service.address, "DELETE", f"/sessions/{sid}", None, secret_header(secret))
 
     def client(k, rnd, left, mismatches, errors):
         try:
             for _ in range(12):
                 action = rnd.choice(["replay", "abandon", "abort-body", "abort-head", "stream"])
                 raw = Raw(service.address, timeout=30)
-                sid = raw.request("POST", "/sessions", {})[2]["session"]
+                sid, secret = create(raw)
+                auth = secret_header(secret)
                 if action == "replay":
                     seed = rnd.randrange(8)
-                    got = [raw.request("POST", f"/sessions/{sid}/step", b)[2] for b in step_inputs(seed, 12)]
+                    got = [raw.request("POST", f"/sessions/{sid}/step", b, auth)[2] for b in step_inputs(seed, 12)]
                     if got != reference[seed]:
                         mismatches.append(seed)
-                    assert raw.request("DELETE", f"/sessions/{sid}")[0] == 200
+                    assert raw.request("DELETE", f"/sessions/{sid}", None, auth)[0] == 200
                 elif action == "abandon":
-                    raw.request("POST", f"/sessions/{sid}/step", step_inputs(k, 1)[0])
-                    left.append(sid)
+                    raw.request("POST", f"/sessions/{sid}/step", step_inputs(k, 1)[0], auth)
+                    left.append((sid, secret))
                 elif action == "abort-body":
-                    raw.send(f"POST /sessions/{sid}/step HTTP/1.1\r\nHost: x\r\nContent-Length: 90\r\n\r\n"
-                             '{"state": [25'.encode())
-                    left.append(sid)
+                    raw.send(f"POST /sessions/{sid}/step HTTP/1.1\r\nHost: localhost\r\nSession-Secret: {secret}\r\n"
+                             "Content-Type: application/json\r\nContent-Length: 90\r\n\r\n"
+                             '{"seq": 0, "state": [25'.encode())
+                    left.append((sid, secret))
                 elif action == "abort-head":
-                    raw.send(b"POST /sessions HTTP/1.1\r\nHost: x\r\nContent-Len")
-                    left.append(sid)
+                    raw.send(b"POST /sessions HTTP/1.1\r\nHost: localhost\r\nContent-Len")
+                    left.append((sid, secret))
                 else:
-                    with ws_connect(f"{url}/sessions/{sid}/stream") as ws:
+                    with ws_connect(f"{url}/sessions/{sid}/stream", additional_headers=auth) as ws:
                         for b in step_inputs(k, rnd.randrange(1, 6)):
                             ws.send(json.dumps(b))
                             assert "applied" in json.loads(ws.recv())
-                    left.append(sid)
+                    left.append((sid, secret))
                 if rnd.random() < 0.5:
                     raw.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
                 raw.close()  # with SO_LINGER 0: a reset, not a close
@@ -246,10 +252,10 @@ def test_soak_no_leaks_and_sessions_do_not_disturb_each_other(service):
 
     def settle():
         deadline = time.monotonic() + 10
-        while service.server.server_state.connections and time.monotonic() < deadline:
+        while service.server.connections and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not service.server.server_state.connections, "connections left open"
-        assert not service.server.server_state.tasks, "requests left running"
+        assert not service.server.connections, "connections left open"
+        assert not service.server.tasks, "requests left running"
 
     base_live = len(service.store.live)
     settle()
@@ -259,8 +265,8 @@ def test_soak_no_leaks_and_sessions_do_not_disturb_each_other(service):
         assert errors == [] and mismatches == []
         settle()
         assert len(service.store.live) == base_live + len(left)  # exactly the abandoned ones
-        for sid in left:
-            assert call(service.address, "DELETE", f"/sessions/{sid}")[0] == 200
+        for sid, secret in left:
+            assert call(service.address, "DELETE", f"/sessions/{sid}", None, secret_header(secret))[0] == 200
         settle()
         assert threading.active_count() == threads0
         assert _fds() <= fds0 + 2

@@ -1,41 +1,34 @@
-"""The guardian service's HTTP and WebSocket API (FastAPI), behind a gate that bounds each request.
+"""The guardian service's HTTP API: who may ask what, and the routes (no I/O; see ``protocol``).
 
-    GET    /health                   -> 200 {"status", "sessions", "expired", "closed", "max_sessions", "session_ttl_s"}
-    GET    /sessions                 -> 200 {"sessions": [{"session", "steps", "idle_s", "active_set"}, ...]}
-    POST   /sessions                 {"use_intention": true, "horizon": 10, "priority": ["throttle", "steering"]}
-                                     -> 201 {"session": ID, ...}
-    POST   /sessions/ID/step         {"state": [v_ex, y_e, h, v_Lx], "input": [a_ex, v_ey]}
-                                     -> 200 the step record (applied input, override, admissible set, failsafe, ...)
-    GET    /sessions/ID              -> 200 {"session", "steps", "active_set", "valid_intentions", "idle_s", "last"}
-    DELETE /sessions/ID              -> 200 {"closed": ID}
-    WS     /sessions/ID/stream       each text message a step body, each reply its record, in order
-    GET    /docs, /openapi.json      the schema
+    GET    /health                -> 200 liveness and counts
+    GET    /ready                 -> 200 when every worker is warmed up and none is stopping, else 503
+    GET    /sessions              -> 200 every live session (admin token only)
+    POST   /sessions              {"use_intention": true, "horizon": 10, "priority": ["throttle", "steering"]}
+                                  -> 201 {"session": ID, "secret": SECRET, "next_seq": 0, ...}
+    POST   /sessions/ID/step      {"seq": N, "state": [v_ex, y_e, h, v_Lx], "input": [a_ex, v_ey]}
+                                  -> 200 the step record ("t" is N)
+    GET    /sessions/ID           -> 200 {"session", "steps", "next_seq", "active_set", "valid_intentions", ...}
+    DELETE /sessions/ID           -> 200 {"closed": ID}
+    GET    /sessions/ID/stream    WebSocket: each text message a step body, each reply its record, in order
+    GET    /openapi.json, /docs   the contract (OpenAPI 3.1) and its reference page, served from the package
 
-Every error is JSON ``{"error": message, ...}``: 400 malformed JSON or framing, or a body over the
-depth / number-length bounds; 401 missing or wrong token; 404 unknown session or path; 405 method;
-408 request not received within the read timeout; 410 expired session; 411 POST without a length;
-413 body too large; 414 target too long; 422 a body that does not match the schema, or a state
-outside the model domain (:class:`~guardian.service.sessions.ModelDomain`); 431 too many or too
-large headers; 503 session limit. A request is validated before it touches its session.
+A session's requests carry its secret (``Session-Secret``). Every answer is JSON; every error is
+``{"error": message, ...}`` with the status the OpenAPI document lists for it (``openapi.py``).
 """
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import hmac
+import ipaddress
 import json
 import logging
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
-from fastapi import FastAPI, Request, WebSocket
-from fastapi.exceptions import RequestValidationError
-from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, ValidationError, field_validator
-from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.websockets import WebSocketDisconnect
 
+from guardian.service.http import RequestHead
 from guardian.service.limits import Limits, json_cost_error
-from guardian.service.sessions import ServiceError, SessionStore
+from guardian.service.sessions import SECRET_HEADER, ServiceError, SessionStore
 
 log = logging.getLogger("guardian.service")
 
@@ -59,21 +52,53 @@ class SessionSettings(BaseModel):
 
 
 class StepRequest(BaseModel):
-    """Body of one step: the state ``x = (v_ex, y_e, h, v_Lx)`` and the driver's input ``(a_ex, v_ey)``."""
+    """Body of one step: its sequence number, the state ``x = (v_ex, y_e, h, v_Lx)`` and the driver's
+    input ``(a_ex, v_ey)``."""
 
     model_config = ConfigDict(extra="forbid")
+    seq: StrictInt = Field(ge=0, le=2 ** 62)
     state: tuple[Finite, Finite, Finite, Finite]
     input: tuple[Finite, Finite]
 
 
-def _body_schema(model, required: bool = True) -> dict:
-    return {"requestBody": {"required": required, "content": {"application/json": {
-        "schema": model.model_json_schema()}}}}
+@dataclass
+class Response:
+    status: int
+    body: bytes
+    headers: tuple = ()
+    close: bool = False
+    content_type: bytes = b"application/json"
 
 
-def _parse_body(model, raw: bytes):
-    """``raw`` validated as ``model`` by pydantic's own JSON parser, whatever the Content-Type says
-    (``curl -d`` sends form-encoded); errors become 400 (not JSON) or 422 (not the schema)."""
+def json_response(status: int, body: dict, headers=(), close: bool = False) -> Response:
+    return Response(status, json.dumps(body).encode(), tuple(headers), close)
+
+
+def error(status: int, message: str, headers=(), close: bool = False, **extra) -> Response:
+    return json_response(status, {"error": message, **extra}, headers, close)
+
+
+def service_error(exc: ServiceError) -> Response:
+    headers = (("retry-after", str(int(exc.extra["retry_after_s"]))),) if "retry_after_s" in exc.extra else ()
+    return json_response(exc.status, exc.body(), headers)
+
+
+def _validation_message(errors) -> str:
+    parts = []
+    for e in errors:
+        loc = [str(p) for p in e.get("loc", ())]
+        parts.append((f"field {'.'.join(loc)!r}: " if loc else "") + e.get("msg", "invalid"))
+    return "; ".join(parts)
+
+
+def parse_body(model, raw: bytes, limits: Limits):
+    """``raw`` checked for cost, then validated as ``model`` by pydantic's own JSON parser.
+
+    Errors: 400 (too deep, a number too long, not JSON) or 422 (not the schema).
+    """
+    problem = json_cost_error(raw, limits)
+    if problem:
+        raise ServiceError(400, problem)
     try:
         return model.model_validate_json(raw)
     except ValidationError as exc:
@@ -83,272 +108,195 @@ def _parse_body(model, raw: bytes):
         raise ServiceError(422, _validation_message(errors)) from None
 
 
-def json_response(status: int, body: dict, close: bool = False, headers: dict | None = None) -> Response:
-    h = dict(headers or {})
-    if close:
-        h["connection"] = "close"
-    return Response(json.dumps(body).encode(), status_code=status, media_type="application/json", headers=h)
+# ---- routes ----------------------------------------------------------------------------------------
+
+ALLOWED = {"health": ("GET", "HEAD"), "ready": ("GET", "HEAD"), "sessions": ("GET", "HEAD", "POST"),
+           "session": ("GET", "HEAD", "DELETE"), "step": ("POST",), "stream": ("GET",),
+           "openapi": ("GET", "HEAD"), "docs": ("GET", "HEAD")}
+_FIXED = {"/health": "health", "/ready": "ready", "/sessions": "sessions", "/openapi.json": "openapi",
+          "/docs": "docs"}
 
 
-def _validation_message(errors) -> str:
-    parts = []
-    for e in errors:
-        loc = [str(p) for p in e.get("loc", ()) if p != "body"]
-        parts.append((f"field {'.'.join(loc)!r}: " if loc else "") + e.get("msg", "invalid"))
-    return "; ".join(parts)
+def route(path: str) -> tuple[str, str | None] | None:
+    """``(route name, session id)`` of a path, or None."""
+    name = _FIXED.get(path)
+    if name is not None:
+        return name, None
+    parts = path.split("/")
+    if len(parts) >= 3 and parts[0] == "" and parts[1] == "sessions" and parts[2]:
+        if len(parts) == 3:
+            return "session", parts[2]
+        if len(parts) == 4 and parts[3] in ("step", "stream"):
+            return parts[3], parts[2]
+    return None
 
 
-def create_app(library, store: SessionStore | None = None, limits: Limits = Limits(),
-               token: str | None = None) -> "Gate":
-    """The ASGI application: the FastAPI routes wrapped in :class:`Gate`."""
-    store = store or SessionStore(library)
-
-    @contextlib.asynccontextmanager
-    async def lifespan(app):
-        sweeper = asyncio.create_task(_sweep_forever(store))
-        try:
-            yield
-        finally:
-            sweeper.cancel()
-
-    app = FastAPI(title="guardian", version="2", lifespan=lifespan, strict_content_type=False,
-                  description="Intention-aware safety supervisor (Chapter 6): one guardian per session.")
-    app.state.store = store
-
-    @app.exception_handler(ServiceError)
-    async def _service_error(request, exc: ServiceError):
-        return json_response(exc.status, exc.body())
-
-    @app.exception_handler(StarletteHTTPException)
-    async def _http_error(request, exc: StarletteHTTPException):
-        message = exc.detail if isinstance(exc.detail, str) else str(exc.detail)
-        if exc.status_code == 404:
-            message = f"no such path {request.url.path}"
-        elif exc.status_code == 405:
-            message = f"{request.method} is not allowed on {request.url.path}"
-        return json_response(exc.status_code, {"error": message}, headers=exc.headers)
-
-    @app.exception_handler(RequestValidationError)
-    async def _invalid(request, exc: RequestValidationError):
-        errors = exc.errors()
-        if any(e.get("type") == "json_invalid" for e in errors):
-            return json_response(400, {"error": "malformed JSON body: " + _validation_message(errors)})
-        return json_response(422, {"error": _validation_message(errors)})
-
-    @app.head("/health", include_in_schema=False)
-    @app.get("/health")
-    async def health():
-        return json_response(200, store.health())
-
-    @app.get("/sessions")
-    async def list_sessions():
-        return json_response(200, {"sessions": store.listing()})
-
-    @app.post("/sessions", status_code=201, openapi_extra=_body_schema(SessionSettings, required=False))
-    async def create_session(request: Request):
-        s = _parse_body(SessionSettings, await request.body() or b"{}")
-        return json_response(201, store.create(s.use_intention, s.horizon, s.priority))
-
-    @app.post("/sessions/{sid}/step", openapi_extra=_body_schema(StepRequest))
-    async def step(sid: str, request: Request):
-        req = _parse_body(StepRequest, await request.body())  # half the cost of FastAPI's body handling
-        return json_response(200, store.step(sid, req.state, req.input))
-
-    @app.get("/sessions/{sid}")
-    async def session_summary(sid: str):
-        return json_response(200, store.summary(sid))
-
-    @app.delete("/sessions/{sid}")
-    async def close_session(sid: str):
-        return json_response(200, store.close(sid))
-
-    @app.websocket("/sessions/{sid}/stream")
-    async def stream(ws: WebSocket, sid: str):
-        await ws.accept()
-        await _stream_steps(ws, store, sid, limits)
-
-    return Gate(app, limits, token)
+def session_of(target: str) -> str | None:
+    """The session id a request target names, if any (for routing a connection to its worker)."""
+    if not target.startswith("/sessions/"):
+        return None
+    sid = target[10:].split("/", 1)[0].split("?", 1)[0]
+    return sid or None
 
 
-async def _sweep_forever(store: SessionStore) -> None:
-    period = min(store.ttl / 4.0, 30.0)
-    while True:
-        await asyncio.sleep(period)
-        store.sweep()
-
-
-def _stream_reply(store: SessionStore, sid: str, raw: bytes, limits: Limits) -> tuple[dict, bool]:
-    """The reply to one stream message, and whether the stream must end (session gone)."""
-    if len(raw) > limits.max_body:
-        return {"error": f"message of {len(raw)} bytes exceeds {limits.max_body}", "status": 413}, False
-    problem = json_cost_error(raw, limits)
-    if problem:
-        return {"error": problem, "status": 400}, False
+def is_loopback_host(value: str) -> bool:
+    """Is a ``Host`` header's host a loopback name (``localhost``, 127.0.0.0/8, ``[::1]``)?"""
+    host = value.strip().lower()
+    if host.startswith("["):
+        host = host[1:host.find("]")] if "]" in host else host
+    elif host.count(":") == 1:
+        host = host.split(":", 1)[0]
+    if host in ("localhost", "localhost.") or host.endswith(".localhost"):
+        return True
     try:
-        req = _parse_body(StepRequest, raw)
-        return store.step(sid, req.state, req.input), False
-    except ServiceError as exc:
-        return {**exc.body(), "status": exc.status}, exc.status in (404, 410)
-
-
-async def _stream_steps(ws: WebSocket, store: SessionStore, sid: str, limits: Limits) -> None:
-    """One reply per message, in order; the session's ttl also bounds how long the stream may idle."""
-    try:
-        store.get(sid)
-    except ServiceError as exc:
-        await ws.send_text(json.dumps({**exc.body(), "status": exc.status}))
-        await ws.close(code=4000 + exc.status, reason=exc.message[:120])
-        return
-    while True:
-        try:
-            message = await asyncio.wait_for(ws.receive(), timeout=store.ttl + 1.0)
-        except asyncio.TimeoutError:
-            message = None
-        if message is None or message["type"] == "websocket.disconnect":
-            if message is None:
-                with contextlib.suppress(Exception):
-                    await ws.close(code=4410, reason="idle longer than the session ttl")
-            return
-        raw = message.get("bytes") or (message.get("text") or "").encode()
-        reply, end = _stream_reply(store, sid, raw, limits)
-        try:
-            await ws.send_text(json.dumps(reply))
-        except (WebSocketDisconnect, RuntimeError):
-            return
-        if end:
-            await ws.close(code=4000 + reply["status"], reason=reply["error"][:120])
-            return
-
-
-class Gate:
-    """ASGI middleware: bounds, token and whole-body reading before any route runs.
-
-    A request reaches the routes only once its whole body has arrived within the read timeout; a
-    client that disconnects mid-body has nothing executed.
-    """
-
-    def __init__(self, app, limits: Limits, token: str | None):
-        self.app = app
-        self.limits = limits
-        self.token = token
-        self.stopping = lambda: False  # the server sets this: answers during shutdown say Connection: close
-
-    @property
-    def store(self) -> SessionStore:
-        return self.app.state.store
-
-    def _authorized(self, headers: list) -> bool:
-        if self.token is None:
-            return True
-        for name, value in headers:
-            if name == b"authorization":
-                scheme, _, given = value.decode("latin-1").partition(" ")
-                return scheme.lower() == "bearer" and hmac.compare_digest(given.strip(), self.token)
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
         return False
 
-    def _refusal(self, scope) -> tuple[int, str, dict] | None:
-        target = len(scope.get("raw_path", b"")) + len(scope.get("query_string", b""))
-        if target > self.limits.max_url:
-            return 414, f"request target of {target} bytes exceeds {self.limits.max_url}", {}
-        headers = scope.get("headers", [])
-        if len(headers) > self.limits.max_headers:
-            return 431, f"{len(headers)} header fields; at most {self.limits.max_headers} are accepted", {}
-        head = sum(len(k) + len(v) + 4 for k, v in headers)
-        if head > self.limits.max_header_bytes:  # the parser bounds only heads that arrive in pieces
-            return 431, f"request head of {head} bytes is longer than {self.limits.max_header_bytes}", {}
-        if not self._authorized(headers):
-            return 401, "missing or wrong token (send 'Authorization: Bearer TOKEN')", {
-                "www-authenticate": "Bearer"}
+
+class App:
+    """The routes and the checks before them; one per worker.
+
+    Parameters
+    ----------
+    store : SessionStore
+    limits : Limits
+    token : str, optional
+        Every request must send ``Authorization: Bearer TOKEN`` (or the admin token).
+    admin_token : str, optional
+        ``Authorization: Bearer ADMIN`` lists every session and may read or delete any.
+    allow_origins : tuple of str
+        Browser origins allowed to call (a request with another ``Origin`` gets 403).
+    loopback : bool
+        The service listens on loopback only: ``Host`` must then be a loopback name (DNS rebinding).
+    cluster : object, optional
+        The other workers (``workers.Cluster``): totals for /health and /ready, the admin listing.
+    """
+
+    def __init__(self, store: SessionStore, limits: Limits = Limits(), token: str | None = None,
+                 admin_token: str | None = None, allow_origins=(), loopback: bool = True, cluster=None):
+        self.store = store
+        self.limits = limits
+        self.token = token
+        self.admin_token = admin_token
+        self.allow_origins = {o.lower().rstrip("/") for o in allow_origins}
+        self.loopback = loopback
+        self.cluster = cluster
+        self.ready = False       # set once the worker is warmed up
+        self.stopping = False    # set when SIGTERM arrived
+        self.connections = lambda: 0
+        from guardian.service import openapi
+        self._openapi_json = json.dumps(openapi.document()).encode()
+        self._docs_page = openapi.docs_html().encode()
+
+    # ---- checks on the head, before any body is read ----------------------------------------------
+
+    def _bearer(self, headers: dict) -> str | None:
+        value = headers.get("authorization")
+        if value is None:
+            return None
+        scheme, _, given = value.partition(" ")
+        return given.strip() if scheme.lower() == "bearer" else ""
+
+    def is_admin(self, head: RequestHead) -> bool:
+        given = self._bearer(head.headers)
+        return bool(self.admin_token and given and hmac.compare_digest(given, self.admin_token))
+
+    def check_head(self, head: RequestHead) -> Response | None:
+        """The refusal of a request from its head alone (then its body is not read), or None."""
+        h = head.headers
+        if self.token is not None:
+            given = self._bearer(h)
+            if not given or not (hmac.compare_digest(given, self.token) or self.is_admin(head)):
+                return error(401, "missing or wrong token (send 'Authorization: Bearer TOKEN')",
+                             (("www-authenticate", 'Bearer realm="guardian"'),), close=True)
+        if self.loopback and "host" in h and not is_loopback_host(h["host"]):
+            return error(403, f"Host {h['host']!r} is not a loopback name: this service listens on loopback "
+                              "only (a browser page reaching it under another name is DNS rebinding)", close=True)
+        origin = h.get("origin")
+        if origin is not None and origin.strip().lower().rstrip("/") not in self.allow_origins:
+            return error(403, f"Origin {origin!r} is not allowed (guardian serve --allow-origin ORIGIN)", close=True)
+        found = route(head.path)
+        if found is None:
+            return error(404, f"no such path {head.path}", close=head.has_body)
+        allowed = ALLOWED[found[0]]
+        if head.method not in allowed:
+            return error(405, f"{head.method} is not allowed on {head.path}", (("allow", ", ".join(allowed)),),
+                         close=head.has_body)
+        if head.method == "POST":
+            ctype = h.get("content-type", "").split(";", 1)[0].strip().lower()
+            if ctype != "application/json":
+                return error(415, "POST bodies must be JSON: send 'Content-Type: application/json'"
+                                  + (f" (got {h['content-type']!r})" if "content-type" in h else ""),
+                             (("accept-post", "application/json"),), close=True)
+            if head.content_length is None and not head.chunked:
+                return error(411, "a POST needs Content-Length or chunked Transfer-Encoding "
+                                  "(send Content-Length: 0 for an empty body)", close=True)
+        if head.content_length is not None and head.content_length > self.limits.max_body:
+            return error(413, f"body of {head.content_length} bytes exceeds {self.limits.max_body}", close=True)
         return None
 
-    async def __call__(self, scope, receive, send):
-        if scope["type"] == "lifespan":
-            return await self.app(scope, receive, send)
-        refusal = self._refusal(scope)
-        if scope["type"] == "websocket":
-            if refusal:
-                return await self._deny_websocket(scope, send, *refusal)
-            return await self.app(scope, receive, send)
-        if refusal:
-            return await json_response(refusal[0], {"error": refusal[1]}, close=True,
-                                       headers=refusal[2])(scope, receive, send)
+    # ---- the routes ---------------------------------------------------------------------------------
+
+    def handle(self, head: RequestHead, body: bytes):
+        """The response to a whole request that passed ``check_head`` (or an awaitable of it)."""
+        name, sid = route(head.path)
         try:
-            body = await self._read_body(scope, receive)
+            return getattr(self, "_" + name)(head, sid, body)
         except ServiceError as exc:
-            return await json_response(exc.status, exc.body(), close=True)(scope, receive, send)
-        if body is None:  # the client left before its request was complete: execute nothing
-            return
-        if body:
-            problem = json_cost_error(body, self.limits)
-            if problem:
-                return await json_response(400, {"error": problem})(scope, receive, send)
-        await self._run(scope, self._replay(body, receive), send)
+            return service_error(exc)
 
-    async def _run(self, scope, receive, send) -> None:
-        started = False
+    def _health(self, head, sid, body) -> Response:
+        counts = (self.cluster.totals() if self.cluster is not None
+                  else {**self.store.counts(), "workers": 1, "workers_alive": 1})
+        return json_response(200, {"status": "ok", "node": self.store.ids.node, "worker": self.store.ids.worker,
+                                   **counts, "max_sessions": self.store.max_sessions,
+                                   "session_ttl_s": self.store.ttl})
 
-        async def tracking_send(message):
-            nonlocal started
-            if message["type"] == "http.response.start":
-                started = True
-                if self.stopping():
-                    message = {**message, "headers": [*message.get("headers", []), (b"connection", b"close")]}
-            await send(message)
+    def _ready(self, head, sid, body) -> Response:
+        ready, workers = (self.cluster.readiness() if self.cluster is not None else (int(self.ready), 1))
+        if self.stopping:
+            return error(503, "stopping: no new sessions (SIGTERM received)", ready=False,
+                         workers_ready=ready, workers=workers)
+        if ready < workers:
+            return error(503, f"{ready} of {workers} workers ready (warming up or restarting)", ready=False,
+                         workers_ready=ready, workers=workers)
+        return json_response(200, {"ready": True, "workers_ready": ready, "workers": workers})
 
-        try:
-            await self.app(scope, receive, tracking_send)
-        except Exception:  # a bug must still answer in JSON, and be logged
-            log.exception("guardian service: unhandled error on %s %s", scope.get("method"), scope.get("path"))
-            if not started:
-                await json_response(500, {"error": "internal error (logged by the service)"},
-                                    close=True)(scope, receive, send)
+    def _sessions(self, head, sid, body):
+        if head.method == "POST":
+            s = parse_body(SessionSettings, body or b"{}", self.limits)
+            return json_response(201, self.store.create(s.use_intention, s.horizon, s.priority))
+        if not self.is_admin(head):
+            why = ("send the admin token ('Authorization: Bearer ADMIN_TOKEN')" if self.admin_token else
+                   "start the service with --admin-token (or GUARDIAN_ADMIN_TOKEN) and send it")
+            return error(403, f"listing every session needs the admin token: {why}")
+        if self.cluster is None:
+            return json_response(200, {"sessions": self.store.listing()})
+        return self._cluster_listing()
 
-    async def _read_body(self, scope, receive) -> bytes | None:
-        headers = dict(scope.get("headers", []))
-        length = headers.get(b"content-length")
-        chunked = b"transfer-encoding" in headers
-        if length is not None and int(length) > self.limits.max_body:  # the parser validated the digits
-            raise ServiceError(413, f"body of {int(length)} bytes exceeds {self.limits.max_body}")
-        if scope["method"] == "POST" and length is None and not chunked:
-            raise ServiceError(411, "a POST needs Content-Length or chunked Transfer-Encoding "
-                                    "(send Content-Length: 0 for an empty body)")
-        body = bytearray()
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.limits.read_timeout
-        while True:
-            try:
-                message = await asyncio.wait_for(receive(), timeout=max(deadline - loop.time(), 0.0))
-            except asyncio.TimeoutError:
-                raise ServiceError(408, f"request body not received within {self.limits.read_timeout:g} s") from None
-            if message["type"] == "http.disconnect":
-                return None
-            body += message.get("body", b"")
-            if len(body) > self.limits.max_body:
-                raise ServiceError(413, f"body exceeds {self.limits.max_body} bytes")
-            if not message.get("more_body", False):
-                return bytes(body)
+    async def _cluster_listing(self) -> Response:
+        listing, missing = await self.cluster.listing()
+        return json_response(200, {"sessions": listing, **({"workers_missing": missing} if missing else {})})
 
-    @staticmethod
-    def _replay(body: bytes, receive):
-        sent = False
+    def _session(self, head, sid, body) -> Response:
+        secret, admin = head.headers.get(SECRET_HEADER), self.is_admin(head)
+        if head.method == "DELETE":
+            return json_response(200, self.store.close(sid, secret, admin))
+        return json_response(200, self.store.summary(sid, secret, admin))
 
-        async def replay():
-            nonlocal sent
-            if not sent:
-                sent = True
-                return {"type": "http.request", "body": body, "more_body": False}
-            return await receive()
+    def _step(self, head, sid, body) -> Response:
+        self.store.get(sid)  # 404/410/421 before the body is judged
+        req = parse_body(StepRequest, body, self.limits)
+        reply = self.store.step(sid, head.headers.get(SECRET_HEADER), req.seq, req.state, req.input)
+        return Response(200, reply)
 
-        return replay
+    def _stream(self, head, sid, body) -> Response:
+        return error(426, "this path is a WebSocket stream: send a WebSocket handshake",
+                     (("upgrade", "websocket"), ("connection", "Upgrade")))
 
-    @staticmethod
-    async def _deny_websocket(scope, send, status: int, message: str, headers: dict) -> None:
-        body = json.dumps({"error": message}).encode()
-        if "websocket.http.response" in scope.get("extensions", {}):
-            await send({"type": "websocket.http.response.start", "status": status,
-                        "headers": [(b"content-type", b"application/json"),
-                                    (b"content-length", str(len(body)).encode()),
-                                    *[(k.encode(), v.encode()) for k, v in headers.items()]]})
-            await send({"type": "websocket.http.response.body", "body": body})
-        else:
-            await send({"type": "websocket.close", "code": 4000 + status, "reason": message[:120]})
+    def _openapi(self, head, sid, body) -> Response:
+        return Response(200, self._openapi_json)
+
+    def _docs(self, head, sid, body) -> Response:
+        return Response(200, self._docs_page, content_type=b"text/html; charset=utf-8")

@@ -1,13 +1,28 @@
 """Sessions of the guardian service, independent of any transport.
 
 One :class:`~guardian.supervisor.IntentionAwareGuardian` (hence one intention estimator) per
-session. Sessions idle longer than ``ttl`` seconds expire; the store remembers the most recent
-expired ids so that a client asking for one hears "expired", not "unknown".
+session. What keeps a session's estimate intact:
+
+- **Sequence numbers.** Step ``seq`` must be the session's next step (its record's ``t``). The same
+  step sent again (a retry: the same ``seq`` and the same state and input as the last step) gets
+  the stored answer and changes nothing; any other ``seq`` gets 409 with ``expected_seq``.
+- **A secret per session**, returned once at creation and required (header ``Session-Secret``) to
+  step, read or delete it. Only its SHA-256 is kept; it is compared in constant time.
+- **One writer.** While a stream is attached to a session, HTTP steps on it get 409.
+
+Ids say where a session lives: ``NODE.WORKER.BOOT.RANDOM`` (e.g. ``n0.1.m3x9q2a8.5f0c...``): the
+node (a host behind a load balancer), the worker process on it, the worker's start time (ms since
+the epoch, base 36) and 64 random bits. An id of an earlier boot is answered 410 "server restarted"
+(its session died with the process); an id of another node 421 (misrouted).
 """
 from __future__ import annotations
 
+import hashlib
+import hmac
+import json
+import re
+import secrets
 import time
-import uuid
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -17,7 +32,71 @@ from guardian.errors import ServiceError
 from guardian.supervisor import IntentionAwareGuardian
 
 PRIORITY_NAMES = {"throttle": 0, "steering": 1}
+INPUT_NAMES = {i: n for n, i in PRIORITY_NAMES.items()}
 EXPIRED_MEMORY = 100_000  # expired ids remembered (older ones become "unknown")
+NODE_NAME = re.compile(r"^[a-z0-9][a-z0-9-]{0,31}$")
+SESSION_ID = re.compile(r"^([a-z0-9][a-z0-9-]{0,31})\.([0-9]{1,3})\.([0-9a-z]{1,13})\.([0-9a-f]{16})$")
+SECRET_HEADER = "session-secret"
+
+
+def base36(n: int) -> str:
+    digits = "0123456789abcdefghijklmnopqrstuvwxyz"
+    out = ""
+    while True:
+        n, r = divmod(n, 36)
+        out = digits[r] + out
+        if n == 0:
+            return out
+
+
+@dataclass(frozen=True)
+class SessionIds:
+    """Where this store's sessions live: ``node``, ``worker`` and the worker's ``boot`` (ms).
+
+    ``service_boot`` is when the service (all its workers) started: an id older than it belongs to a
+    previous run of the service; an id of this worker older than ``boot`` to a previous run of the worker.
+    """
+
+    node: str = "n0"
+    worker: int = 0
+    boot: int = 0
+    service_boot: int = 0
+
+    def __post_init__(self):
+        if not NODE_NAME.match(self.node):
+            raise ValueError(f"node name {self.node!r} must be 1-32 of a-z, 0-9 and '-', starting with a letter or digit")
+        if not 0 <= self.worker <= 999:
+            raise ValueError(f"worker index {self.worker} must be in 0..999")
+
+    @classmethod
+    def starting_now(cls, node: str = "n0", worker: int = 0, service_boot: int | None = None) -> "SessionIds":
+        now = time.time_ns() // 1_000_000
+        return cls(node, worker, now, now if service_boot is None else service_boot)
+
+    def new(self) -> str:
+        return f"{self.node}.{self.worker}.{base36(self.boot)}.{secrets.token_hex(8)}"
+
+    @staticmethod
+    def parse(sid: str) -> tuple[str, int, int] | None:
+        """``(node, worker, boot)`` of a well-formed id, else None."""
+        m = SESSION_ID.match(sid)
+        if m is None:
+            return None
+        return m.group(1), int(m.group(2)), int(m.group(3), 36)
+
+    def unknown(self, sid: str) -> ServiceError:
+        """Why ``sid`` (not live, not remembered as expired) is not here: 404, 410 or 421."""
+        parsed = self.parse(sid)
+        if parsed is None:
+            return ServiceError(404, f"unknown session {sid!r}")
+        node, worker, boot = parsed
+        if node != self.node:
+            return ServiceError(421, f"session {sid!r} lives on node {node!r}, this is node {self.node!r}: "
+                                     f"route /sessions/{node}.* to that node", node=node)
+        if boot < self.service_boot or (worker == self.worker and boot < self.boot):
+            return ServiceError(410, f"server restarted: session {sid!r} was lost with the process that held it",
+                                restarted=True)
+        return ServiceError(404, f"unknown session {sid!r}")
 
 
 @dataclass(frozen=True)
@@ -48,37 +127,66 @@ class ModelDomain:
         return out
 
 
+def _digest(secret: str) -> bytes:
+    return hashlib.sha256(secret.encode("utf-8", "surrogateescape")).digest()
+
+
 class Session:
-    def __init__(self, library, use_intention: bool, horizon: int, priority: tuple, now: float):
-        self.id = uuid.uuid4().hex[:16]
+    """One guardian, its secret's digest, its last answer (for retries) and its stream, if any."""
+
+    __slots__ = ("id", "guardian", "secret_digest", "created", "last_used", "last_key", "last_reply", "stream")
+
+    def __init__(self, sid: str, library, use_intention: bool, horizon: int, priority: tuple, now: float):
+        self.id = sid
         self.guardian = IntentionAwareGuardian(library, use_intention=use_intention, horizon=horizon,
                                                priority=priority)
+        self.secret_digest = b""
         self.created = now
         self.last_used = now
-        self.steps = 0
-        self.last = None
+        self.last_key = None     # (state, input) of the last step, as floats
+        self.last_reply = b""    # its JSON answer, sent again to a retry
+        self.stream = None       # the attached stream, if any (one writer)
+
+    @property
+    def next_seq(self) -> int:
+        return self.guardian.t
 
     def idle(self, now: float) -> float:
         return now - self.last_used
 
-    def step(self, state, u) -> dict:
-        _, record = self.guardian.step(np.asarray(state, dtype=float), np.asarray(u, dtype=float))
-        out = record.as_dict()
-        self.steps += 1
-        self.last = out
-        return out
+    def step(self, seq: int, state, u) -> bytes:
+        """The JSON record of step ``seq`` (a retry of the last step gets the stored one)."""
+        expected = self.guardian.t
+        key = (tuple(state), tuple(u))
+        if seq != expected:
+            if seq == expected - 1 and key == self.last_key:
+                return self.last_reply
+            if seq == expected - 1:
+                why = f"step {seq} was already applied with a different state or input"
+            elif seq < expected:
+                why = f"step {seq} was already applied"
+            else:
+                why = f"step {seq} would skip step {expected}"
+            raise ServiceError(409, f"{why}; session {self.id!r} expects step {expected} next", expected_seq=expected)
+        _, record = self.guardian.step(np.array(state, dtype=float), np.array(u, dtype=float))
+        reply = json.dumps(record.as_dict()).encode()
+        self.last_key, self.last_reply = key, reply
+        return reply
 
     def summary(self, now: float) -> dict:
         g = self.guardian
-        return {"session": self.id, "steps": self.steps, "active_set": g.active_set,
+        last = json.loads(self.last_reply) if self.last_reply else None
+        return {"session": self.id, "steps": g.t, "next_seq": g.t, "active_set": g.active_set,
                 "valid_intentions": list(g.estimator.valid), "use_intention": g.use_intention,
-                "horizon": g.estimator.horizon, "idle_s": round(self.idle(now), 3), "last": self.last}
+                "horizon": g.estimator.horizon, "priority": [INPUT_NAMES[i] for i in g.priority],
+                "idle_s": round(self.idle(now), 3), "streaming": self.stream is not None, "last": last}
 
 
 class SessionStore:
     """Live sessions with an idle time-to-live and a cap; ``clock`` is injectable for tests."""
 
-    def __init__(self, library, ttl: float = 300.0, max_sessions: int = 1000, clock=time.monotonic):
+    def __init__(self, library, ttl: float = 300.0, max_sessions: int = 1000, clock=time.monotonic,
+                 ids: SessionIds | None = None):
         if ttl <= 0 or max_sessions < 1:
             raise ValueError(f"session ttl must be > 0 and max_sessions >= 1, got {ttl}, {max_sessions}")
         self.library = library
@@ -86,73 +194,113 @@ class SessionStore:
         self.ttl = float(ttl)
         self.max_sessions = int(max_sessions)
         self.clock = clock
+        self.ids = ids or SessionIds.starting_now()
         self.live: dict[str, Session] = {}
         self.expired: OrderedDict[str, float] = OrderedDict()  # id -> when it expired
         self.expired_total = 0
         self.closed_total = 0
+        self.created_total = 0
+        self.on_change = None  # called with the store after sessions come or go (worker statistics)
+
+    def _changed(self) -> None:
+        if self.on_change is not None:
+            self.on_change(self)
 
     def sweep(self) -> int:
-        """Expire every session idle longer than the ttl; returns how many expired."""
+        """Expire every session idle longer than the ttl (a streaming one is in use); returns how many."""
         now = self.clock()
-        stale = [sid for sid, s in self.live.items() if s.idle(now) > self.ttl]
+        stale = [sid for sid, s in self.live.items() if s.idle(now) > self.ttl and s.stream is None]
         for sid in stale:
             del self.live[sid]
             self.expired[sid] = now
             self.expired_total += 1
         while len(self.expired) > EXPIRED_MEMORY:
             self.expired.popitem(last=False)
+        if stale:
+            self._changed()
         return len(stale)
 
     def create(self, use_intention: bool, horizon: int, priority: tuple[str, str]) -> dict:
+        """A new session; the answer holds its ``secret``, shown this once."""
         if len(self.live) >= self.max_sessions:
             self.sweep()
         if len(self.live) >= self.max_sessions:
             raise ServiceError(503, f"session limit {self.max_sessions} reached; idle sessions expire "
                                     f"after {self.ttl:g} s", retry_after_s=self.ttl)
         now = self.clock()
-        session = Session(self.library, use_intention, horizon,
+        session = Session(self.ids.new(), self.library, use_intention, horizon,
                           tuple(PRIORITY_NAMES[p] for p in priority), now)
+        secret = secrets.token_urlsafe(24)
+        session.secret_digest = _digest(secret)
         self.live[session.id] = session
-        return session.summary(now)
+        self.created_total += 1
+        self._changed()
+        return {**session.summary(now), "secret": secret}
 
     def get(self, sid: str) -> Session:
+        """The live session ``sid``, or the ServiceError saying why not (404, 410, 421)."""
         session = self.live.get(sid)
-        now = self.clock()
-        if session is not None and session.idle(now) > self.ttl:
+        if session is not None and session.stream is None and session.idle(self.clock()) > self.ttl:
             self.sweep()
             session = None
         if session is None:
             if sid in self.expired:
                 raise ServiceError(410, f"session {sid!r} expired after {self.ttl:g} s idle", expired=True)
-            raise ServiceError(404, f"unknown session {sid!r}")
+            raise self.ids.unknown(sid)
         return session
 
-    def step(self, sid: str, state, u) -> dict:
-        """Validate the state against the model domain, then step the session's guardian."""
+    def authorized(self, sid: str, secret: str | None, admin: bool = False) -> Session:
+        """The session, if ``secret`` is its secret (or the caller holds the admin token), else 403."""
         session = self.get(sid)
+        if admin:
+            return session
+        if secret is None:
+            raise ServiceError(403, f"session {sid!r} needs its secret: send the 'Session-Secret' header "
+                                    "with the secret returned when it was created")
+        if not hmac.compare_digest(_digest(secret), session.secret_digest):
+            raise ServiceError(403, f"wrong secret for session {sid!r}")
+        return session
+
+    def check_state(self, state) -> None:
         bad = self.domain.violations(state)
         if bad:
             raise ServiceError(422, "state outside the model domain: " + "; ".join(bad))
-        session.last_used = self.clock()
-        return session.step(state, u)
 
-    def summary(self, sid: str) -> dict:
-        session = self.get(sid)
+    def step(self, sid: str, secret: str | None, seq: int, state, u, stream=None) -> bytes:
+        """Validate, then step the session's guardian; returns the record as JSON bytes.
+
+        ``stream`` is the caller's stream, if the step came on one: a session with a stream attached
+        takes steps from that stream only.
+        """
+        session = self.authorized(sid, secret)
+        if session.stream is not stream:
+            raise ServiceError(409, f"session {sid!r} is attached to a stream: steps go there (one writer per "
+                                    "session)", expected_seq=session.next_seq)
+        self.check_state(state)
+        session.last_used = self.clock()
+        return session.step(seq, state, u)
+
+    def summary(self, sid: str, secret: str | None, admin: bool = False) -> dict:
+        session = self.authorized(sid, secret, admin)
         return session.summary(self.clock())
 
-    def close(self, sid: str) -> dict:
-        self.get(sid)
+    def close(self, sid: str, secret: str | None, admin: bool = False) -> dict:
+        session = self.authorized(sid, secret, admin)
         del self.live[sid]
         self.closed_total += 1
+        if session.stream is not None:
+            session.stream.session_closed()
+        self._changed()
         return {"closed": sid}
 
     def listing(self) -> list[dict]:
         self.sweep()
         now = self.clock()
-        return [{"session": s.id, "steps": s.steps, "idle_s": round(s.idle(now), 3),
-                 "active_set": s.guardian.active_set} for s in self.live.values()]
+        return [{"session": s.id, "steps": s.guardian.t, "idle_s": round(s.idle(now), 3),
+                 "active_set": s.guardian.active_set, "streaming": s.stream is not None}
+                for s in self.live.values()]
 
-    def health(self) -> dict:
+    def counts(self) -> dict:
         self.sweep()
-        return {"status": "ok", "sessions": len(self.live), "expired": self.expired_total,
-                "closed": self.closed_total, "max_sessions": self.max_sessions, "session_ttl_s": self.ttl}
+        return {"sessions": len(self.live), "expired": self.expired_total, "closed": self.closed_total,
+                "created": self.created_total}

@@ -1,0 +1,106 @@
+"""The promise, row by row: every way the guardian was once seen to break it, replayed.
+
+Each test reproduces a setting where the guardian let the ego cause a crash, entered a lane unchecked,
+reversed, ran unsupervised or miscounted, and checks it no longer does. The decisions themselves are
+tested on hand-built scenes in tests/test_pointmass_guardian.py and tests/test_bicycle_guardian.py; the
+campaign over thousands of episodes is `guardian falsify` (docs/guardian.md).
+"""
+import gymnasium as gym
+import highway_env  # noqa: F401
+import numpy as np
+
+import envs  # noqa: F401
+from guardian.rollout import OVERTAKE_ENV, highway_env_config, highway_rollouts
+from guardian.wrapper import Guardian
+
+PROMISE = ("ego_at_fault_collisions", "unchecked_entries", "reversing_steps", "unsupervised_steps")
+
+
+def _kept(r: dict) -> bool:
+    return all(r[k] == 0 for k in PROMISE)
+
+
+def test_random_agent_behind_an_aggressive_lead_among_traffic(traffic_library):
+    """Was: 16 of 244 episodes crashed, all caused by the ego (a leftward override into a fast car)."""
+    r = highway_rollouts(OVERTAKE_ENV, "random", 6, 100, library=traffic_library, intention="aggressive")
+    assert _kept(r) and r["safety_violations"] == 0
+
+
+def test_adversarial_noise_entries_refused_are_never_booked_responsible(traffic_library):
+    """Was: 14 of 112 crashed; an entry refused in the record was booked as responsible by the ledger."""
+    r = highway_rollouts(OVERTAKE_ENV, "random", 4, 2000, library=traffic_library, intention="aggressive",
+                         disturbance="adversarial")
+    assert _kept(r) and r["safety_violations"] == 0
+
+
+def test_three_lanes_twelve_cars_six_from_behind(traffic_library):
+    """Was: collisions with 12 cars on 3 lanes and with 6 cars starting behind."""
+    r = highway_rollouts(OVERTAKE_ENV, "reckless", 3, 7, library=traffic_library, intention="aggressive",
+                         traffic=12, env_config={"lanes_count": 3, "traffic_from_behind": 6})
+    assert _kept(r) and r["safety_violations"] == 0
+
+
+def test_among_traffic_the_ego_may_wait_behind_the_lead():
+    """Was: with the dissertation's v_ex >= 16 the ego had to overtake into traffic; now the scenario's
+    default parameters let it stop, and the guardian refuses the old floor with traffic."""
+    env = gym.make(OVERTAKE_ENV)
+    assert env.unwrapped.params.v_ex_bounds[0] == 0.0 and env.unwrapped.config["traffic_count"] > 0
+
+
+def test_a_car_cutting_in_ahead_is_braked_for(traffic_library):
+    """Was: the guardian held the agent's full throttle for 3.8 s into a car that cut in 29 m ahead,
+    8 m/s slower. Here a car cuts into the ego's left lane 29 m ahead while the agent floors it."""
+    cfg = highway_env_config(OVERTAKE_ENV, None, "cautious", "random", 1, traffic_library,
+                             {"lanes_count": 3, "traffic_from_behind": 0, "duration": 8})
+    env = Guardian(gym.make(OVERTAKE_ENV, config=cfg), traffic_library)
+    env.reset(seed=0)
+    base = env.unwrapped
+    ego, car = base.vehicle, base.road.vehicles[2]
+    ego.position = np.array([ego.position[0], ego.y_of(1.8)])  # the ego drives in the left lane
+    ego.speed = 25.0
+    base.lead.position = np.array([ego.position[0] - 40.0, base.lead.position[1]])
+    car.position = np.array([ego.position[0] + 29.0, ego.position[1]])
+    car.speed = car.target_speed = 17.0
+    for v in (ego, base.lead, car):
+        v.on_state_update()
+    car.target_lane_index = car.lane_index
+    done = False
+    while not done:
+        _, _, term, trunc, info = env.step(np.array([1.0, 0.0]))
+        assert not ego.crashed
+        done = term or trunc
+    assert info["guardian"]["overridden"] or ego.speed <= 17.5
+
+
+def test_highway_fast_random_continuous_agents_of_the_reported_run():
+    """Was: 3 collisions in 30 episodes, one at the ego's fault (steering checked one step ahead) and one
+    from highway-env's extrapolating crash test with the bodies still apart."""
+    r = highway_rollouts("highway-fast-v0", "random", 30, 0, action="continuous")
+    assert _kept(r)
+
+
+def test_starts_no_guardian_can_save_are_counted_apart():
+    """Was: crashes at steps 1-2 from a start 5 m behind a car counted as the guardian's failures."""
+    r = highway_rollouts("highway-fast-v0", "reckless", 12, 0, action="meta",
+                         env_config={"vehicles_density": 2.5, "policy_frequency": 1})
+    crashes = r["crashes"]
+    assert r["starts_outside"] > 0 and _kept(r)
+    assert r["ego_at_fault_collisions"] == sum(c["fault"] == "ego" and c["start_inside"] for c in crashes)
+    assert r["ego_at_fault_after_outside_starts"] == sum(c["fault"] == "ego" and not c["start_inside"] for c in crashes)
+    assert r["collisions_after_outside_starts"] == sum(not c["start_inside"] for c in crashes)
+
+
+def test_exits_from_the_safe_set_are_counted_with_the_guardian_too(traffic_library, monkeypatch):
+    """Was: safety_violations counted only without the guardian. A forced exit is counted with it."""
+    from envs.highway_overtake import HighwayOvertakeEnv
+
+    real = HighwayOvertakeEnv.left_safe_set
+    calls = {"n": 0}
+
+    def sometimes(self):
+        calls["n"] += 1
+        return calls["n"] == 5 or real(self)
+
+    monkeypatch.setattr(HighwayOvertakeEnv, "left_safe_set", sometimes)
+    r = highway_rollouts(OVERTAKE_ENV, "idle", 1, 0, library=traffic_library, env_config={"duration": 2})
+    assert r["safety_violations"] == 1
