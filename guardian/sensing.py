@@ -213,7 +213,9 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
 
     A car changing lanes (``lane_index != target_lane_index``) occupies both. ``ego`` is the guarded car
     whose scene this is (default: the env's ego); ``guarded`` are the ids of every guarded car (they
-    announce, ``Car.announces``; one without a lane controller occupies the lanes its body overlaps);
+    announce, ``Car.announces``). On a ``RoadMap``, and with several guarded cars, every car also occupies
+    the lanes its body overlaps (widened as the guardian widens its own: a slow car turning out of a lane
+    reaches back into it); with one guarded car on the straight road the scene is what it always was;
     ``announced`` maps a guarded car's id to the ITHA lanes it announced it enters this step. On a
     ``RoadMap`` fronts are along the lanes' chains, obstacles are standing cars and each dead end is a
     standing car of length 0 (``guardian.roads``).
@@ -233,11 +235,8 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
             others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed),
                               _itha_lanes(road.n_lanes, lane, target), veh.LENGTH, f"car {k}"))
             continue
-        if _is_controlled(type(veh)):
-            lanes = _itha_lanes(road.n_lanes, lane, veh.target_lane_index[2])
-        else:  # a guarded car steered by its agent: where its body is
-            lanes = frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road)) or \
-                _itha_lanes(road.n_lanes, lane, lane)
+        target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
+        lanes = _itha_lanes(road.n_lanes, lane, target) | frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road))
         lanes = lanes | announced.get(id(veh), frozenset())
         others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, veh.LENGTH, f"car {k}",
                           id(veh) in guarded))
@@ -264,11 +263,10 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
         if veh is ego:
             continue
         x, y = float(veh.position[0]), float(veh.position[1])
+        slots = set(road.body_slots(x, y, float(veh.heading), veh.LENGTH, veh.WIDTH, BicycleEgo.LATERAL_MARGIN))
+        slots.add(road.slot_of(veh.lane_index))
         if _is_controlled(type(veh)):
-            slots = {road.slot_of(veh.lane_index), road.slot_of(veh.target_lane_index)}
-        else:
-            slots = road.body_slots(x, y, float(veh.heading), veh.LENGTH, veh.WIDTH, BicycleEgo.LATERAL_MARGIN) or \
-                {road.slot_of(veh.lane_index)}
+            slots.add(road.slot_of(veh.target_lane_index))
         lanes = frozenset(road.itha_lane(j) for j in slots) | announced.get(id(veh), frozenset())
         others.append(Car(road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2, float(veh.speed), lanes,
                           veh.LENGTH, f"car {k}", id(veh) in guarded))
