@@ -55,7 +55,7 @@ class OvertakeStateObservation(ObservationType):
 
     def observe(self) -> np.ndarray:
         return self.env.overtake_state()
-SUPPORTED_ACTIONS = ("ContinuousAction", "DiscreteMetaAction")
+SUPPORTED_ACTIONS = ("ContinuousAction", "DiscreteAction", "DiscreteMetaAction")
 
 
 class HighwayOvertakeEnv(AbstractEnv):
@@ -149,14 +149,12 @@ class HighwayOvertakeEnv(AbstractEnv):
         if kind not in SUPPORTED_ACTIONS:
             raise ConfigError(f"HighwayOvertake: config 'action.type' {kind!r} is not supported; "
                               f"use one of {SUPPORTED_ACTIONS}")
-        if kind == "ContinuousAction":
+        if kind in ("ContinuousAction", "DiscreteAction"):  # the ranges default to U_e; an axis not controlled is 0
             for key, bounds in (("acceleration_range", p.a_ex_bounds), ("steering_range", p.v_ey_bounds)):
-                lo, hi = action.get(key, (None, None))
-                if lo is None or lo < bounds[0] or hi > bounds[1]:
+                lo, hi = action.setdefault(key, list(bounds))
+                if lo < bounds[0] or hi > bounds[1]:
                     raise ConfigError(f"HighwayOvertake: config 'action.{key}' is {action.get(key)}; it must lie "
                                       f"in U_e = {list(bounds)} (the model's input bounds)")
-            if not action.get("longitudinal", True) or not action.get("lateral", True):
-                raise ConfigError("HighwayOvertake: config 'action' must control both axes (longitudinal and lateral)")
 
     def define_spaces(self) -> None:
         """highway-env's observation and action types, and ``OvertakeState`` (the state ``x`` itself)."""

@@ -6,6 +6,7 @@ Each subclasses a builtin, so ``except ValueError`` still catches a bad file or 
   supervised as asked;
 * ``HighDFormatError`` (``ValueError``): a HighD-format file is malformed; the message says where;
 * ``ServiceError`` (``Exception``): a refused service request, with the HTTP status a client sees;
+* ``FramingError`` (``Exception``): an HTTP request the service cannot read (answered, then closed);
 * ``LPError``, ``StaleCacheError`` (``RuntimeError``): the engine's (``rcis.errors``), re-exported;
 * ``Terminated`` (``KeyboardInterrupt``): SIGTERM, raised by the command line's handler so that a
   job stops as it does on Ctrl-C (finished work kept, nothing half-written).
@@ -40,4 +41,14 @@ class Terminated(KeyboardInterrupt):
     """The process received SIGTERM; handled like Ctrl-C."""
 
 
-__all__ = ["ConfigError", "HighDFormatError", "LPError", "ServiceError", "StaleCacheError", "Terminated"]
+class FramingError(Exception):
+    """An HTTP request the service cannot read: answered with ``status`` and ``message``, then closed."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+        self.message = message
+
+
+__all__ = ["ConfigError", "FramingError", "HighDFormatError", "LPError", "ServiceError", "StaleCacheError",
+           "Terminated"]

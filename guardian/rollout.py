@@ -7,6 +7,7 @@ the ``highway-v0`` family.
 """
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -188,7 +189,11 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
 
     overtake = env_id in OVERTAKE_ENVS
     config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config, controlled)
+    if video_dir:  # SDL's offscreen driver: no display is looked for (and no XDG_RUNTIME_DIR error)
+        os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
+    if video_dir:  # highway-env's default ratio (2) makes videos play at double speed
+        env.unwrapped.update_metadata(video_real_time_ratio=1)
     if guardian:
         gcfg = guardian_config or GuardianConfig(use_intention=use_intention, horizon=horizon)
         if safe_start:

@@ -278,17 +278,16 @@ class RecordingWindowLPEstimator(WindowLPEstimator):
 
 def _rollouts(library):
     from envs.agents import BASELINES
-    from guardian.rollout import overtake_rollouts
+    from guardian.rollout import TWO_CARS_ENV, highway_rollouts
 
     out = []
     for intention in ("aggressive", "cautious"):
         for disturbance in ("random", "adversarial"):
             for driver in BASELINES:
                 for use_intention in (True, False):
-                    r = overtake_rollouts(library, intention, driver, episodes=2, seed=7, disturbance=disturbance,
-                                          use_intention=use_intention, max_steps=100)
-                    r.pop("seconds")
-                    out.append(r)
+                    out.append(highway_rollouts(TWO_CARS_ENV, driver, 2, 7, library=library, intention=intention,
+                                                disturbance=disturbance, use_intention=use_intention,
+                                                env_config={"duration": 10}))
     return out
 
 

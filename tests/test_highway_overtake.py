@@ -77,7 +77,7 @@ def test_traffic_never_enters_the_scenarios_right_lane():
 @pytest.mark.parametrize("config,match", [
     ({"simulation_frequency": 15}, "simulation_frequency"),
     ({"policy_frequency": 1}, "policy_frequency"),
-    ({"action": {"type": "DiscreteAction"}}, "action.type"),
+    ({"action": {"type": "MultiAgentAction"}}, "action.type"),
     ({"action": {"type": "ContinuousAction", "acceleration_range": [-5, 5], "steering_range": [-1.8, 1.8]}},
      "acceleration_range"),
     ({"lanes_count": 1}, "lanes_count"),
@@ -97,3 +97,23 @@ def test_render_shows_the_scene():
     frame = env.render()
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.std() > 0
     env.close()
+
+
+@pytest.mark.parametrize("action", [{"type": "DiscreteAction"}, {"type": "ContinuousAction", "lateral": False},
+                                    {"type": "ContinuousAction", "longitudinal": False}, {"type": "ContinuousAction"}])
+def test_every_action_type_acts_on_U_e_and_is_supervised(action, traffic_library):
+    """DiscreteAction's grid and one-axis continuous actions: the ranges default to U_e, the other axis is 0."""
+    from guardian.wrapper import Guardian
+
+    env = Guardian(gym.make("guardian/HighwayOvertake-v0", config={"action": dict(action), "duration": 3}),
+                   traffic_library)
+    env.reset(seed=0)
+    p = env.unwrapped.params
+    for _ in range(10):
+        _, _, _, _, info = env.step(env.action_space.sample())
+        u = env.unwrapped.last_transition["input"]
+        assert p.a_ex_bounds[0] <= u[0] <= p.a_ex_bounds[1] and p.v_ey_bounds[0] <= u[1] <= p.v_ey_bounds[1]
+        assert info["guardian"]["sim_steps"] == 1 and env.action_space.contains(
+            np.asarray(info["guardian"]["applied_action"], dtype=env.action_space.dtype)
+            if not isinstance(info["guardian"]["applied_action"], int) else info["guardian"]["applied_action"])
+

@@ -89,3 +89,20 @@ def test_rendering_prints_no_sdl_error(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert "XDG_RUNTIME_DIR" not in r.stderr and "error" not in r.stderr.lower(), r.stderr
+
+
+def test_highway_v0_videos_from_the_rollout_play_at_the_policy_frequency_without_sdl_errors(tmp_path):
+    """highway-env's own metadata doubles the rate (``video_real_time_ratio`` 2); the rollout sets it to 1."""
+    from moviepy import VideoFileClip
+
+    code = ("from guardian.rollout import highway_rollouts; "
+            f"highway_rollouts('highway-fast-v0', 'random', 1, 0, action='meta', guardian=False, "
+            f"env_config={{'duration': 2}}, video_dir={str(tmp_path / 'video')!r})")
+    env = {k: v for k, v in os.environ.items() if k not in ("SDL_VIDEODRIVER", "XDG_RUNTIME_DIR")}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "XDG_RUNTIME_DIR" not in done.stderr
+    (mp4,) = (tmp_path / "video").glob("*.mp4")
+    clip = VideoFileClip(str(mp4))
+    assert clip.fps == 1  # highway-fast-v0: policy_frequency 1
+    clip.close()

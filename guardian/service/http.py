@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from email.utils import formatdate
 
 from guardian.service.limits import Limits
+from guardian.errors import FramingError  # noqa: F401 (re-exported for the protocol)
 
 REASONS = {100: "Continue", 101: "Switching Protocols", 200: "OK", 201: "Created", 400: "Bad Request",
            401: "Unauthorized", 403: "Forbidden", 404: "Not Found", 405: "Method Not Allowed",
@@ -38,15 +39,6 @@ _VALUE_BAD = re.compile(rb"[\x00-\x08\x0a-\x1f\x7f]")
 _DIGITS = re.compile(rb"^[0-9]+$")
 _HEX = re.compile(rb"^[0-9A-Fa-f]{1,16}$")
 MAX_CHUNK_LINE = 1024  # bytes of a chunk-size line with its extensions
-
-
-class FramingError(Exception):
-    """A request that cannot be read: answer ``status`` with ``message`` and close."""
-
-    def __init__(self, status: int, message: str):
-        super().__init__(message)
-        self.status = status
-        self.message = message
 
 
 @dataclass
