@@ -134,7 +134,11 @@ class _Road:
         return [v for v in self.base.road.vehicles if v is not self.ego]
 
     def n_lanes(self) -> int:
-        return int(self.base.config["lanes_count"])
+        """Lanes of the ego's road segment (highway-env's ``lanes_count`` on one straight road)."""
+        if self.overtake:
+            return int(self.base.config["lanes_count"])
+        _from, _to, _ = self.ego.lane_index
+        return len(self.base.road.network.graph[_from][_to])
 
     def lane(self, v=None) -> int:
         return (v or self.ego).lane_index[2]
@@ -147,6 +151,8 @@ class _Road:
     def lateral_towards(self, lane: int) -> float:
         """A lateral command in ``[-1, 1]`` (the env's continuous scale) moving the ego to ``lane``'s centre."""
         ego = self.ego
+        if not self.overtake:  # a lane of the ego's segment (roads whose segments differ in lanes)
+            lane = min(max(lane, 0), self.n_lanes() - 1)
         y_target = self.base.road.network.get_lane(("0", "1", lane) if self.overtake else
                                                    ego.lane_index[:2] + (lane,)).position(ego.position[0], 0)[1]
         dy = float(y_target - ego.position[1])
