@@ -179,3 +179,53 @@ def test_mixed_or_unsupported_action_types_are_refused():
 def test_several_controlled_cars_need_a_traffic_mode_on_guarded_merge():
     with pytest.raises(ValueError, match="traffic easy, medium or hard"):
         gym.make("guardian/Merge-v0", config={"controlled_vehicles": 2}).reset(seed=0)
+
+
+# ---- the tally's rules on hand-built cases -------------------------------------------------------------------
+def _tally_env(n=2):
+    env = gym.make("guardian/Merge-v0", config={"traffic": "easy", "controlled_vehicles": n, "action": {
+        "type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction"}}})
+    env.reset(seed=0)
+    return env
+
+
+def _place(base, v, index, x):
+    lane = base.road.network.get_lane(index)
+    v.position = np.array(lane.position(x, 0.0), float)
+    v.heading = float(lane.heading_at(x))
+    v.lane_index = v.target_lane_index = index
+    v.lane = lane
+
+
+def test_merges_count_cars_that_began_on_a_lane_that_ends_and_finished_on_one_that_goes_on():
+    from guardian.rollout import HighwayTally
+
+    env = _tally_env(2)
+    base = env.unwrapped
+    a, b = base.controlled_vehicles
+    _place(base, a, ("b", "c", 2), 20.0)   # on the ramp's parallel part (it ends at x = 310)
+    _place(base, b, ("b", "c", 2), 50.0)
+    tally = HighwayTally(env, overtake=False, guardian=False)
+    tally.start_episode(env, 0, None)
+    _place(base, a, ("b", "c", 1), 60.0)   # a reached the main road; b stayed on the ramp
+    tally.end_episode(env, 0)
+    r = tally.result(1)
+    assert (r["merges"], r["on_ending_lane"]) == (1, 2)
+    assert [(c["merges"], c["on_ending_lane"]) for c in r["agents"]] == [(1, 1), (0, 1)]
+    assert r["agents"][0]["distance_mean"] == pytest.approx(40.0)
+    env.close()
+
+
+def test_a_crash_between_two_guarded_cars_counts_once_and_against_the_one_blamed():
+    from guardian.judge import Crash
+    from guardian.rollout import HighwayTally
+
+    env = _tally_env(2)
+    tally = HighwayTally(env, overtake=False, guardian=False)
+    tally.start_episode(env, 0, None)
+    tally._count_crash(Crash(3, "other", "entry", "car 1", car=0, partner_car=1), {})
+    r = tally.result(1)
+    assert r["collisions"] == 1 and r["guarded_pair_collisions"] == 1
+    assert r["ego_at_fault_collisions"] + r["ego_at_fault_after_outside_starts"] == 1
+    assert [(c["collisions"], c["at_fault_collisions"]) for c in r["agents"]] == [(1, 0), (1, 1)]
+    env.close()
