@@ -9,12 +9,18 @@ controls, normalised to ``[-1, 1]``) or ``DiscreteAction`` (the nearest point of
 * ``reckless``: meta: changes lanes whenever it can, alternating sides, else FASTER;
   continuous: full throttle, steering hard to one side then the other (2 s each);
 * ``idle``: IDLE, or zero acceleration and steering;
+* ``merge``: wants onto the road that goes on: on a lane that ends (no lane begins where it ends: an
+  on-ramp's) it asks for the lane on its left (meta ``LANE_LEFT``; continuous: steering towards that lane
+  at full throttle), elsewhere full throttle keeping its lane (meta ``FASTER``);
 * ``mpc``, ``bad``, ``careful``: the switched MPC drivers of Section 6.5.3 (``envs.mpc``) on the
   overtake state (``guardian/Overtake-v0`` or ``guardian/HighwayOvertake-v0``, continuous actions);
 * adversaries (highway-env roads), trying to make the guardian fail: ``seek`` (drive at the nearest
   car), ``brake_check`` (cut in front of a car behind, then brake hard), ``oscillate`` (flip the
   lateral command every few steps at full throttle), ``hold`` (hold a random action 1-3 s), ``trap``
   (close up on the car ahead, swerve into a neighbouring lane when a car is level or closing there).
+
+With highway-env's ``MultiAgentAction`` every controlled car gets its own agent of the name, seeded from the
+episode's generator in the controlled order, which sees its own car as the ego (``MultiAgent``).
 
 ``BASELINES`` are the four drivers of Section 6.5.3's experiment (``--agent all``); ``policy:PATH`` drives
 with a stable-baselines3 policy file (``PolicyAgent``).
@@ -36,7 +42,8 @@ class Agent(Protocol):
 
 
 def _kind(env) -> str:
-    """``DiscreteMetaAction``, ``ContinuousAction`` (highway-env) or ``Box`` (physical units)."""
+    """``DiscreteMetaAction``, ``ContinuousAction``, ``MultiAgentAction`` (highway-env) or ``Box`` (physical
+    units)."""
     action_type = getattr(env.unwrapped, "action_type", None)
     return type(action_type).__name__ if action_type is not None else "Box"
 
@@ -141,7 +148,11 @@ class _Road:
         return [v for v in self.base.road.vehicles if v is not self.ego]
 
     def n_lanes(self) -> int:
-        return int(self.base.config["lanes_count"])
+        """Lanes of the ego's road segment (highway-env's ``lanes_count`` on one straight road)."""
+        if self.overtake:
+            return int(self.base.config["lanes_count"])
+        _from, _to, _ = self.ego.lane_index
+        return len(self.base.road.network.graph[_from][_to])
 
     def lane(self, v=None) -> int:
         return (v or self.ego).lane_index[2]
@@ -154,6 +165,8 @@ class _Road:
     def lateral_towards(self, lane: int) -> float:
         """A lateral command in ``[-1, 1]`` (the env's continuous scale) moving the ego to ``lane``'s centre."""
         ego = self.ego
+        if not self.overtake:  # a lane of the ego's segment (roads whose segments differ in lanes)
+            lane = min(max(lane, 0), self.n_lanes() - 1)
         y_target = self.base.road.network.get_lane(("0", "1", lane) if self.overtake else
                                                    ego.lane_index[:2] + (lane,)).position(ego.position[0], 0)[1]
         dy = float(y_target - ego.position[1])
@@ -269,11 +282,75 @@ class TrapAgent:
         return road.act(1.0, road.lane())
 
 
+class MergeAgent:
+    """Onto the road that goes on (module docstring)."""
+
+    def __init__(self, env, rng):
+        self.env, self.base, self.kind = env, env.unwrapped, _kind(env)
+
+    def _lane_ends(self, index) -> bool:
+        """No lane of the network begins where this lane ends."""
+        network = self.base.road.network
+        lane = network.get_lane(index)
+        end = lane.position(lane.length, 0.0)
+        return not any(np.hypot(*(other.position(0.0, 0.0) - end)) < 1e-6
+                       for tos in network.graph.values() for group in tos.values() for other in group)
+
+    def __call__(self, obs):
+        ego = self.base.vehicle
+        index = ego.lane_index
+        left = index[:2] + (index[2] - 1,)
+        wants = index[2] > 0 and self._lane_ends(index)
+        if self.kind == "DiscreteMetaAction":
+            return _meta_names(self.env).index("LANE_LEFT" if wants else "FASTER")
+        lane = self.base.road.network.get_lane(left if wants else index)
+        s, r = lane.local_coordinates(ego.position)
+        steer = float(np.clip(-0.15 * r - 1.5 * (float(ego.heading) - float(lane.heading_at(s))), -1.0, 1.0))
+        return _continuous(self.env, 1.0, steer)
+
+
+class _CarEnv:
+    """What one controlled car's agent sees of a multi-agent env: its own action space and type, its own car
+    as the ego; everything else is the env's."""
+
+    def __init__(self, env, index: int):
+        self.action_space = env.action_space[index]
+        self.unwrapped = _CarBase(env.unwrapped, index)
+
+
+class _CarBase:
+    def __init__(self, base, index: int):
+        self._base, self._index = base, index
+
+    @property
+    def action_type(self):
+        return self._base.action_type.agents_action_types[self._index]
+
+    @property
+    def vehicle(self):
+        return self._base.controlled_vehicles[self._index]
+
+    def __getattr__(self, name):
+        return getattr(self._base, name)
+
+
+class MultiAgent:
+    """One agent per controlled car of a ``MultiAgentAction`` env; their actions as the env's tuple."""
+
+    def __init__(self, name: str, env, rng, algo=None):
+        n = len(env.unwrapped.action_type.agents_action_types)
+        self.agents = [make_agent(name, _CarEnv(env, i), np.random.default_rng(rng.integers(2 ** 63)), algo)
+                       for i in range(n)]
+
+    def __call__(self, obs):
+        return tuple(agent(obs) for agent in self.agents)
+
+
 def _mpc(style: str):
     return lambda env, rng: MPCAgent(env, rng, STYLES[style])
 
 
-_FACTORIES = {"random": RandomAgent, "reckless": RecklessAgent, "idle": IdleAgent,
+_FACTORIES = {"random": RandomAgent, "reckless": RecklessAgent, "idle": IdleAgent, "merge": MergeAgent,
               **{name: _mpc(name) for name in STYLES},
               "seek": SeekAgent, "brake_check": BrakeCheckAgent, "oscillate": OscillateAgent, "hold": HoldAgent,
               "trap": TrapAgent}
@@ -368,6 +445,10 @@ def make_agent(name: str, env, rng: np.random.Generator, algo: str | None = None
     Agent
         A callable ``agent(obs) -> action``.
     """
+    if _kind(env) == "MultiAgentAction":
+        if name.startswith("policy:"):
+            raise ValueError("a policy file drives one car; MultiAgentAction envs take the registry's agents")
+        return MultiAgent(name, env, rng, algo)
     if name.startswith("policy:"):
         return PolicyAgent(env, rng, name.partition(":")[2], algo)
     if name not in _FACTORIES:

@@ -33,7 +33,8 @@ from rcis.intervals import intersect_intervals, nearest_in_intervals
 
 @dataclass(frozen=True)
 class EgoState:
-    """The bicycle ego at one instant, in highway-env's coordinates (lane ids 0 = leftmost)."""
+    """The bicycle ego at one instant, in highway-env's coordinates (lane ids 0 = leftmost; on a
+    ``guardian.roads.RoadMap`` lanes are slots and ``front`` is along the lane's chain)."""
 
     front: float            # front bumper along the road [m]
     y: float                # lateral position of the centre [m]
@@ -41,6 +42,7 @@ class EgoState:
     speed: float            # [m/s]
     lane: int               # highway-env lane id of the lane it is closest to
     target_lane: int        # the lane its controller steers to (meta agents); ``lane`` otherwise
+    x: float = 0.0          # world position of the centre [m] (read on a RoadMap only)
 
 
 class BicycleGuardian:
@@ -48,8 +50,8 @@ class BicycleGuardian:
 
     Parameters
     ----------
-    kin : BicycleEgo
-        The ego's kinematics (step, lanes, steering limits).
+    kin : BicycleEgo or RoadMapEgo
+        The ego's kinematics (step, lanes, steering limits) on its road.
     config : guardian.wrapper.GuardianConfig
     meta : bool
         The agent gives meta actions (the vehicle's controller steers).
@@ -79,6 +81,8 @@ class BicycleGuardian:
             return False, "a lane change is already under way"
         if not 0 <= target < self.kin.n_lanes:
             return False, "no such lane"
+        if not self.kin.lane_here(target, ego):
+            return False, "no lane there at this point of the road"
         lane = self.itha_lane(target)
         verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(ego.lane)}), lane)
         if not verdict.responsible:
@@ -112,7 +116,7 @@ class BicycleGuardian:
         a_prop, steer_prop = (float(v) for v in proposed)
         kin = self.kin
         d = Decision(proposed=[a_prop, steer_prop], applied=[], changed="none")
-        now = set(kin.swept_lanes(ego.y, ego.heading, 0.0)) or {ego.lane}
+        now = set(kin.occupied(ego)) or {ego.lane}
         if len(now) == 1:
             self.home = next(iter(now))
         elif self.home not in now:
@@ -151,6 +155,10 @@ class BicycleGuardian:
             d.entries.append(Entry(lane, False, "not next to the lane the ego is in"))
             d.refused.append(lane)
             return None
+        if not self.kin.lane_here(lane_id, ego):
+            d.entries.append(Entry(lane, False, "no lane there at this point of the road"))
+            d.refused.append(lane)
+            return None
         verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(i) for i in start}), lane)
         speeds = verdict.speeds
         if verdict.responsible:
@@ -180,14 +188,14 @@ class BicycleGuardian:
     def _steering(self, ego: EgoState, scene: Scene, now: set, proposed: float, d: Decision):
         """The steering nearest to the proposal whose path enters no lane irresponsibly."""
         kin = self.kin
-        for k, steer in enumerate(kin.steering_candidates(proposed, ego.heading)):
+        for k, steer in enumerate(kin.candidates(ego, proposed)):
             why = f"steering {proposed:.3f} rad refused: " if k == 0 else ""  # only the proposal's refusal is said
-            y1, h1 = kin.predict(ego.y, ego.heading, ego.speed, steer)
-            if abs(h1) > kin.MAX_HEADING and abs(h1) > abs(ego.heading):
-                d.note(why and why + f"the heading would reach {abs(h1):.3f} rad (bound {kin.MAX_HEADING} rad)")
+            nxt = kin.after(ego, steer)
+            if kin.turns_too_far(ego, nxt):
+                d.note(why and why + f"the heading would pass the bound of {kin.MAX_HEADING} rad")
                 continue
-            lanes, depth = kin.path_lanes(ego.y, ego.heading, ego.speed, steer)
-            if depth > kin.off_road_depth(ego.y, ego.heading) + 1e-9:
+            lanes, depth = kin.path_lanes_of(ego, steer)
+            if depth > kin.depth_of(ego) + 1e-9:
                 d.note(why and why + "the body would leave the road before its heading is straightened")
                 continue  # leaves the road, or further than it already is
             new = lanes - now
@@ -202,11 +210,11 @@ class BicycleGuardian:
                 if entry is None:
                     d.note(f"entering lane {d.entries[-1].lane} refused: {d.entries[-1].reason}")
                     continue
-            return float(steer), now | set(kin.swept_lanes(y1, h1, ego.speed)) | set(lanes), entry
+            return float(steer), now | set(kin.lanes_after(ego, nxt)) | set(lanes), entry
         d.level, d.changed = "failsafe", "failsafe"
         d.note("failsafe: no steering keeps the body out of lanes it may not enter; straightening")
-        steer = kin.straightening(ego.heading, ego.speed)
-        lanes, _ = kin.path_lanes(ego.y, ego.heading, ego.speed, steer)
+        steer = kin.recovery(ego)
+        lanes, _ = kin.path_lanes_of(ego, steer)
         return steer, now | set(lanes), [(0.0, np.inf)]
 
     def _accelerations(self, ego: EgoState, scene: Scene, occupied: set, entry: list, d: Decision) -> list:
@@ -222,7 +230,7 @@ class BicycleGuardian:
         speeds = intersect_intervals(speeds, entry)
         if d.entered:
             self._limits.append((f"the entry into lane {d.entered[-1]} (7.5)", entry))
-        progress = kin.min_progress(ego.speed, ego.heading)
+        progress = kin.progress_of(ego)
         for lane in sorted(itha - {self.itha_lane(self.home)}):
             fs, why = self.traffic.follower_speeds(ego_scene, lane, ego_progress_min=progress)
             kept = intersect_intervals(speeds, fs)

@@ -10,7 +10,13 @@ answers into input constraints, exactly for the model that moves the ego.
   (hi - (1 - b_e dt) v)/dt - w_ex^max]``.
 * ``BicycleEgo``: highway-env's own vehicles: ``speed+ = speed + dt a`` and the
   position moves by ``dt speed (cos, sin)(heading + beta)``, ``beta =
-  atan(tan(steering) / 2)``; the heading turns by ``dt speed sin(beta) / (L/2)``.
+  atan(tan(steering) / 2)``; the heading turns by ``dt speed sin(beta) / (L/2)``,
+  on one straight road along x;
+* ``RoadMapEgo``: the same bicycle on a road beyond one straight segment (``guardian.roads.RoadMap``):
+  lanes that begin and end, on-ramps and exits; headings are measured against the lane's.
+
+``guardian.bicycle.BicycleGuardian`` reads the two bicycle classes through one interface that takes the
+ego's state (``occupied``, ``candidates``, ``after``, ``path_lanes_of``, ...).
 """
 from __future__ import annotations
 
@@ -217,3 +223,153 @@ class BicycleEgo:
         rest = sorted([float(s) for s in grid] + [float(np.clip(straight, -self.max_steering, self.max_steering))],
                       key=lambda s: abs(s - proposed))
         return [proposed] + rest
+
+    # ---- the interface BicycleGuardian reads (states are guardian.bicycle.EgoState) -------------------
+    def occupied(self, ego) -> frozenset:
+        """Lanes (highway-env ids) the body, widened by ``LATERAL_MARGIN``, overlaps now."""
+        return self.swept_lanes(ego.y, ego.heading, 0.0)
+
+    def body_lanes(self, ego) -> frozenset:
+        """Lanes the body itself overlaps now."""
+        return self.lanes_at(ego.y, ego.heading)
+
+    def lane_here(self, lane: int, ego) -> bool:
+        """Is there a lane ``lane`` beside the ego here?"""
+        return 0 <= lane < self.n_lanes
+
+    def candidates(self, ego, proposed: float) -> list:
+        return self.steering_candidates(proposed, ego.heading)
+
+    def after(self, ego, steering: float):
+        """The lateral state after one step with ``steering``."""
+        return self.predict(ego.y, ego.heading, ego.speed, steering)
+
+    def turns_too_far(self, ego, nxt) -> bool:
+        """Does the heading after the step exceed ``MAX_HEADING`` (and grow)?"""
+        return abs(nxt[1]) > self.MAX_HEADING and abs(nxt[1]) > abs(ego.heading)
+
+    def lanes_after(self, ego, nxt) -> frozenset:
+        return self.swept_lanes(nxt[0], nxt[1], ego.speed)
+
+    def path_lanes_of(self, ego, steering: float) -> tuple[frozenset, float]:
+        return self.path_lanes(ego.y, ego.heading, ego.speed, steering)
+
+    def depth_of(self, ego) -> float:
+        return self.off_road_depth(ego.y, ego.heading)
+
+    def recovery(self, ego) -> float:
+        """The fail-safe steering: straighten along the lane."""
+        return self.straightening(ego.heading, ego.speed)
+
+    def progress_of(self, ego) -> float:
+        return self.min_progress(ego.speed, ego.heading)
+
+
+class RoadMapEgo(BicycleEgo):
+    """highway-env's bicycle on a ``guardian.roads.RoadMap``: lanes are slots (highway-env ids of the
+    corridor, 0 = leftmost), present where the map says; on a branch (an on-ramp's approach, an exit's
+    curve) headings are measured against the branch's. The body must stay on the road (every point of its
+    outline in some lane's strip); the straightening aligns the heading with the lane's a step ahead.
+    The ego state's ``x`` is the world position of the body's centre."""
+
+    def __init__(self, dt: float, accel: float, length: float, width: float, road, max_steering: float):
+        super().__init__(dt, accel, length, width, road.lane_width, road.n_lanes, max_steering)
+        self.road = road
+
+    # ---- geometry along a path ----------------------------------------------------------------------
+    def _step(self, x: float, y: float, h: float, v: float, steering: float) -> tuple:
+        beta = math.atan(0.5 * math.tan(steering))
+        return (x + self.dt * v * math.cos(h + beta), y + self.dt * v * math.sin(h + beta),
+                h + self.dt * v * math.sin(beta) / (self.length / 2))
+
+    def _relative(self, x: float, y: float, h: float) -> float:
+        """Heading against the lane's at the point (wrapped to (-pi, pi])."""
+        d = h - self.road.lane_heading(x, y)
+        return (d + math.pi) % (2 * math.pi) - math.pi
+
+    def _recover(self, x: float, y: float, h: float, v: float) -> float:
+        """The steering that brings the heading to the lane's a step ahead, as near as the limit allows."""
+        if v <= 0:
+            return 0.0
+        ahead = self.road.lane_heading(x + self.dt * v * math.cos(h), y + self.dt * v * math.sin(h))
+        d = (ahead - h + math.pi) % (2 * math.pi) - math.pi
+        if abs(d) >= math.pi / 2:
+            return 0.0
+        sin_beta = d * (self.length / 2) / (self.dt * v)
+        beta_max = math.atan(0.5 * math.tan(self.max_steering))
+        beta = math.asin(max(-math.sin(beta_max), min(math.sin(beta_max), sin_beta)))
+        return float(np.clip(math.atan(2 * math.tan(beta)), -self.max_steering, self.max_steering))
+
+    def _path(self, x, y, h, v, steering, speed_step) -> list:
+        """``[(x, y, heading, speed), ...]`` after one step with ``steering``, then the recovery steering until
+        the heading is (nearly) the lane's."""
+        states = [(*self._step(x, y, h, v, steering), max(v + speed_step, 0.0))]
+        for _ in range(self.RECOVERY_STEPS):
+            x1, y1, h1, v1 = states[-1]
+            if abs(self._relative(x1, y1, h1)) < 1e-6:
+                break
+            states.append((*self._step(x1, y1, h1, v1, self._recover(x1, y1, h1, v1)), max(v1 + speed_step, 0.0)))
+        return states
+
+    def _slots(self, xs, ys, hs, vs=None) -> frozenset:
+        """Slots the bodies (widened, swept by their velocity over a step when ``vs`` is given) overlap."""
+        xs, ys, hs = np.asarray(xs, float), np.asarray(ys, float), np.asarray(hs, float)
+        dx = dy = 0.0
+        if vs is not None:
+            vs = np.asarray(vs, float)
+            dx, dy = self.dt * vs * np.cos(hs), self.dt * vs * np.sin(hs)
+        return self.road.body_slots(xs, ys, hs, self.length, self.width, self.LATERAL_MARGIN, dx, dy)
+
+    def _depth(self, xs, ys, hs) -> float:
+        from guardian.roads import outline
+
+        px, py = outline(xs, ys, hs, self.length, self.width)
+        d = self.road.depth(px, py)
+        return float(np.max(d)) if d.size else 0.0
+
+    # ---- the interface BicycleGuardian reads -----------------------------------------------------------
+    def occupied(self, ego) -> frozenset:
+        return self._slots([ego.x], [ego.y], [ego.heading])
+
+    def body_lanes(self, ego) -> frozenset:
+        return self.road.body_slots(ego.x, ego.y, ego.heading, self.length, self.width)
+
+    def lane_here(self, lane: int, ego) -> bool:
+        if self.road.on_branch(ego.x, ego.y) is not None:
+            return lane == ego.lane  # nothing beside a ramp's approach or an exit's curve
+        return self.road.slot_at(lane, ego.x)
+
+    def candidates(self, ego, proposed: float) -> list:
+        rel = self._relative(ego.x, ego.y, ego.heading)
+        straight = math.atan(2 * math.tan(-rel)) if abs(rel) < math.pi / 2 else 0.0
+        grid = np.linspace(-self.max_steering, self.max_steering, self.CANDIDATES)
+        rest = sorted([float(s) for s in grid] + [float(np.clip(straight, -self.max_steering, self.max_steering)),
+                                                 self._recover(ego.x, ego.y, ego.heading, ego.speed)],
+                      key=lambda s: abs(s - proposed))
+        return [proposed] + rest
+
+    def after(self, ego, steering: float):
+        return self._step(ego.x, ego.y, ego.heading, ego.speed, steering)
+
+    def turns_too_far(self, ego, nxt) -> bool:
+        rel = abs(self._relative(*nxt))
+        return rel > self.MAX_HEADING and rel > abs(self._relative(ego.x, ego.y, ego.heading))
+
+    def lanes_after(self, ego, nxt) -> frozenset:
+        return self._slots([nxt[0]], [nxt[1]], [nxt[2]], [ego.speed])
+
+    def path_lanes_of(self, ego, steering: float) -> tuple[frozenset, float]:
+        states = []
+        for step in (self.dt * self.accel, -self.dt * self.accel):
+            states += self._path(ego.x, ego.y, ego.heading, ego.speed, steering, step)
+        xs, ys, hs, vs = (np.array(c) for c in zip(*states))
+        return self._slots(xs, ys, hs, vs), self._depth(xs, ys, hs)
+
+    def depth_of(self, ego) -> float:
+        return self._depth([ego.x], [ego.y], [ego.heading])
+
+    def recovery(self, ego) -> float:
+        return self._recover(ego.x, ego.y, ego.heading, ego.speed)
+
+    def progress_of(self, ego) -> float:
+        return self.min_progress(ego.speed, self._relative(ego.x, ego.y, ego.heading))

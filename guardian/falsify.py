@@ -20,6 +20,14 @@ overtake state (highway-env's Kinematics table costs 60 % of their step) and ``h
 last 15 s instead of 40 (its 50 cars at 15 Hz make it five times slower than ``highway-fast-v0``); both
 are part of each cell's config, so the replay command reproduces them.
 
+``only="roads"`` (``guardian falsify --only roads``; not part of the default matrix, which stays as it was)
+runs the roads beyond one straight segment: ``merge-v0``, ``merge-generic-v0`` (meta; highway-env's merge
+envs fail with continuous actions), ``guardian/Merge-v0`` with merge-v0's traffic (both action types),
+``exit-v0`` (both), each with ``ROAD_AGENTS`` and the ``merge`` agent; and several guarded cars on
+``guardian/Merge-v0`` (``MULTI_SETTINGS``: 2 and 4 controlled cars in the merging reference's easy and hard
+traffic, 20 s at 5 Hz) for both over-approximations, with random, reckless and merge agents and both
+action types.
+
 The counts are ``guardian.rollout.HighwayTally``'s (each by a written rule; the fault judge is
 ``guardian.judge``); ``exceptions`` counts episodes that raised.
 """
@@ -48,6 +56,11 @@ HIGHWAY_SETTINGS = (
     ("policy 5 Hz", {"policy_frequency": 5}),
     ("policy 15 Hz", {"policy_frequency": 15, "simulation_frequency": 15}),
 )
+ROADS = (("merge-v0", ("meta",), {}), ("merge-generic-v0", ("meta",), {}),
+         ("guardian/Merge-v0", ("continuous", "meta"), {}), ("exit-v0", ("continuous", "meta"), {}))
+MULTI_SETTINGS = tuple((f"{n} guarded, {traffic}", n, {"traffic": traffic, "duration": 20, "policy_frequency": 5})
+                       for n in (2, 4) for traffic in ("easy", "hard"))
+MULTI_AGENTS = ("random", "reckless", "merge")
 COUNTED = ("collisions", "ego_at_fault_collisions", "starts_outside", "collisions_after_outside_starts",
            "ego_at_fault_after_outside_starts", "safety_violations", "failsafe_steps", "conflict_steps",
            "unchecked_entries", "reversing_steps", "unsupervised_steps", "override_steps", "steps")
@@ -66,6 +79,8 @@ class Cell:
     traffic: int | None = None
     env_config: tuple = ()          # sorted (key, json value) pairs
     guardian: bool = True
+    controlled: int | None = None   # several controlled cars (MultiAgentAction)
+    overapprox: str = "trivial"
 
     @property
     def config(self) -> dict:
@@ -77,6 +92,10 @@ class Cell:
         if self.env == OVERTAKE_ENV:
             parts += [f"--intention {self.intention}", f"--disturbance {self.disturbance}", f"--traffic {self.traffic}"]
         parts += [f"--env-config {shlex.quote(k + '=' + v.replace(' ', ''))}" for k, v in self.env_config]
+        if self.controlled is not None:
+            parts.append(f"--controlled {self.controlled}")
+        if self.overapprox != "trivial":
+            parts.append(f"--overapprox {self.overapprox}")
         if not self.guardian:
             parts.append("--no-guardian")
         parts += ["--episodes 1", f"--seed {seed}", "--json"]
@@ -89,8 +108,20 @@ def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
 
 
 def matrix(guardian: bool = True, only: str | None = None) -> list[Cell]:
-    """The campaign's cells (``only``: ``overtake`` or ``highway``)."""
+    """The campaign's cells (``only``: ``overtake``, ``highway`` or ``roads``; by default the first two)."""
     cells = []
+    if only == "roads":
+        for env, actions, config in ROADS:
+            for action in actions:
+                for agent in ROAD_AGENTS + ("merge",):
+                    cells.append(_cell(env, agent, action, "own config", config, guardian))
+        for setting, n, config in MULTI_SETTINGS:
+            for action in ("continuous", "meta"):
+                for agent in MULTI_AGENTS:
+                    for overapprox in (("trivial", "ordered") if guardian else ("trivial",)):
+                        cells.append(_cell("guardian/Merge-v0", agent, action, setting, config, guardian,
+                                           controlled=n, overapprox=overapprox))
+        return cells
     if only in (None, "overtake"):
         for setting, traffic, config in OVERTAKE_TRAFFIC:
             for action in ("continuous", "meta"):
@@ -130,11 +161,15 @@ def run_episode(cell: Cell, seed: int, cache_dir=None) -> dict:
     """One episode of ``cell``: the tally's counts, or the exception it raised."""
     from guardian.rollout import highway_rollouts
 
+    from guardian.config import GuardianConfig
+
     try:
         library = _library(cell.traffic, cache_dir) if cell.env == OVERTAKE_ENV else None
         r = highway_rollouts(cell.env, cell.agent, 1, seed, action=cell.action, guardian=cell.guardian,
                              library=library, intention=cell.intention, disturbance=cell.disturbance,
-                             traffic=cell.traffic, env_config=cell.config)
+                             traffic=cell.traffic, env_config=cell.config, controlled=cell.controlled,
+                             guardian_config=GuardianConfig(overapprox=cell.overapprox)
+                             if cell.overapprox != "trivial" else None)
     except Exception:  # noqa: BLE001 - an episode that raises is a finding, counted and kept
         return {"exception": traceback.format_exc(limit=6)}
     return r
@@ -167,8 +202,9 @@ class Campaign:
                                   "detail": r["exception"].strip().splitlines()[-1]})
             return
         for crash in r["crashes"]:
-            if crash["fault"] == "ego" or not crash["start_inside"]:
-                self.failures.append({"kind": "at-fault collision" if crash["start_inside"] and crash["fault"] == "ego"
+            blamed = crash["fault"] == "ego" or crash.get("partner_car") is not None   # a guarded car at fault
+            if blamed or not crash["start_inside"]:
+                self.failures.append({"kind": "at-fault collision" if crash["start_inside"] and blamed
                                       else "collision after a start outside", "fault": crash["fault"],
                                       "rule": crash["rule"], "cell": cell.setting, "command": cell.command(seed)})
         for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps"):
@@ -180,6 +216,8 @@ class Campaign:
     @staticmethod
     def _keys(cell: Cell) -> list:
         family = "HighwayOvertake" if cell.env == OVERTAKE_ENV else cell.env
+        if cell.controlled is not None:
+            family = f"{cell.env} x{cell.controlled} {cell.overapprox}"
         return [("all",), ("env", family, cell.action), ("agent", cell.agent), ("setting", family, cell.setting)]
 
     def table(self, kind: str) -> list:

@@ -14,6 +14,9 @@ transitions the model does not cover:
   road in ``[BicycleEgo.min_progress, dt speed]`` (what the guardian covers);
 * traffic (7.3): progress ``dt v``, acceleration in ``[d_min, d_max]``, speed in
   ``[0, v_max]``.
+
+With several guarded cars each has its own monitor (``observe(..., ego=vehicle)``); only one of them
+counts the traffic (``watch_traffic``), so that sums over the cars count each car once.
 """
 from __future__ import annotations
 
@@ -24,8 +27,9 @@ TOL = 1e-6
 
 class ModelMonitor:
     def __init__(self, dt: float, d_bounds: tuple, v_max: float, overtake_params=None, intention_models=None,
-                 ego_kinematics=None, ego_stops_at_zero: bool = False):
+                 ego_kinematics=None, ego_stops_at_zero: bool = False, watch_traffic: bool = True):
         self.dt, self.d_bounds, self.v_max = dt, d_bounds, v_max
+        self.watch_traffic = watch_traffic
         self.ego_stops_at_zero = ego_stops_at_zero
         self.p = overtake_params
         self.models = intention_models or {}
@@ -37,10 +41,10 @@ class ModelMonitor:
         self.totals = {"ego": 0, "lead": 0, "traffic": 0}
         self.worst = {"traffic_progress_shortfall_m": 0.0, "traffic_braking_excess": 0.0}
 
-    def _snapshot(self, base, applied):
-        ego = base.vehicle
+    def _snapshot(self, base, applied, ego=None):
+        ego = base.vehicle if ego is None else ego
         lead = getattr(base, "lead", None)
-        others = [v for v in base.road.vehicles if v is not ego and v is not lead]
+        others = [v for v in base.road.vehicles if v is not ego and v is not lead] if self.watch_traffic else []
         ids = np.fromiter((id(v) for v in others), dtype=np.int64, count=len(others))
         x_v = np.fromiter((c for v in others for c in (v.position[0], v.speed)), dtype=float,
                           count=2 * len(others)).reshape(-1, 2)
@@ -50,9 +54,10 @@ class ModelMonitor:
             snap["x"] = base.overtake_state()
         return snap
 
-    def observe(self, base, applied) -> dict:
-        """Counts for the transition that ended now; then remember the present with ``applied``."""
-        now = self._snapshot(base, applied)
+    def observe(self, base, applied, ego=None) -> dict:
+        """Counts for the transition that ended now; then remember the present with ``applied``.
+        ``ego``: the guarded car this monitor watches (default: the env's ego)."""
+        now = self._snapshot(base, applied, ego)
         counts = {"ego": 0, "lead": 0, "traffic": 0}
         if self._prev is not None:
             counts = self._compare(self._prev, now)

@@ -79,12 +79,25 @@ OVERTAKE_ENVS = (TWO_CARS_ENV, OVERTAKE_ENV)
 ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "ContinuousAction"}}
 
 
+MERGE_V0_NOTE = ("highway-env's merge-v0 {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
+                 "and it spawns one ego); guardian/Merge-v0 is merge-v0's road and traffic for both action types and "
+                 "several controlled cars (env config traffic=easy|medium|hard for the merging reference's modes)")
+
+
 def highway_env_config(env_id: str, action: str | None, intention: str | None = None, disturbance: str = "random",
-                       traffic: int | None = None, library=None, extra: dict | None = None) -> dict:
+                       traffic: int | None = None, library=None, extra: dict | None = None,
+                       controlled: int | None = None) -> dict:
     """The env config of a rollout: the action type, and on HighwayOvertake the scenario's choices.
 
-    On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption).
+    On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). ``controlled``:
+    that many controlled cars under highway-env's ``MultiAgentAction`` (one agent and one guardian each).
     """
+    if env_id == "merge-v0" and action == "continuous":
+        raise ValueError(MERGE_V0_NOTE.format(what="fails with ContinuousAction"))
+    if controlled is not None and env_id in OVERTAKE_ENVS:
+        raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
+    if controlled is not None and env_id == "merge-v0":
+        raise ValueError(MERGE_V0_NOTE.format(what="has one controlled car"))
     config = dict(extra or {})
     if env_id in OVERTAKE_ENVS:
         from envs.highway_overtake import HighwayOvertakeEnv
@@ -103,7 +116,24 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
             config["action"] = dict(ACTIONS[action])
         if traffic is not None:
             config["vehicles_count"] = traffic
+        if controlled is not None:
+            inner = config.get("action") or {"type": _default_action(env_id)}
+            config["action"] = {"type": "MultiAgentAction", "action_config": dict(inner)}
+            config["controlled_vehicles"] = controlled
     return config
+
+
+def _default_action(env_id: str) -> str:
+    """The env's own action type (its class's default config)."""
+    import importlib
+
+    import gymnasium as gym
+
+    entry = gym.spec(env_id).entry_point
+    if not callable(entry):
+        module, _, name = entry.partition(":")
+        entry = getattr(importlib.import_module(module), name)
+    return entry.default_config()["action"]["type"]
 
 
 def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, action: str | None = None,
@@ -111,7 +141,7 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
                      disturbance: str = "random", traffic: int | None = None, use_intention: bool = True,
                      env_config: dict | None = None, guardian_config=None, safe_start: bool = False,
                      horizon: int = 10, progress=None, rerun_path=None, video_dir=None,
-                     policy_algo: str | None = None) -> dict:
+                     policy_algo: str | None = None, controlled: int | None = None) -> dict:
     """Seeded episodes of one agent on a highway-env environment, with or without the ``Guardian``.
 
     Parameters
@@ -142,6 +172,8 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         Write a rerun recording; write each episode as MP4 into this folder.
     policy_algo : str, optional
         The algorithm of a ``policy:PATH`` agent (default: read from the file).
+    controlled : int, optional
+        That many controlled cars (``MultiAgentAction``), each with its own agent and guardian.
 
     Returns
     -------
@@ -157,7 +189,7 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
     from guardian.wrapper import Guardian, GuardianConfig
 
     overtake = env_id in OVERTAKE_ENVS
-    config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config)
+    config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config, controlled)
     if video_dir:  # SDL's offscreen driver: no display is looked for (and no XDG_RUNTIME_DIR error)
         os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
     try:
@@ -195,6 +227,18 @@ COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_
           "override_steps", "model_clip_steps", "refused_lane_changes", "clipped_sim_steps", "lane_changes",
           "model_violation_steps", "traffic_model_violation_steps", "follower_dropped_steps", "conflict_steps",
           "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments")
+MULTI_COUNTS = ("guarded_pair_collisions", "merges", "on_ending_lane")
+CAR_COUNTS = ("collisions", "at_fault_collisions", "lane_changes", "override_steps", "refused_lane_changes",
+              "merges", "on_ending_lane")
+
+
+def _multi(base) -> bool:
+    return type(getattr(base, "action_type", None)).__name__ == "MultiAgentAction"
+
+
+def guarded_cars(base) -> list:
+    """The cars a rollout counts: highway-env's controlled cars under ``MultiAgentAction``, else the ego."""
+    return list(base.controlled_vehicles) if _multi(base) else [base.vehicle]
 
 
 class HighwayTally(Observer):
@@ -211,6 +255,8 @@ class HighwayTally(Observer):
         if overtake:
             self.totals["wrong_identifications"] = 0
         self.identify, self.distance, self.monitor_worst = [], 0.0, {}
+        self.per_car = None          # per controlled car (several): CAR_COUNTS and distance
+        self.multi = False
 
     def _watch_the_lead(self, env) -> None:
         from guardian.monitor import ModelMonitor
@@ -230,6 +276,7 @@ class HighwayTally(Observer):
 
     def start_episode(self, env, episode, obs) -> None:
         from guardian.judge import FaultJudge
+        from guardian.roads import RoadMap
         from guardian.sensing import read_road
 
         base = env.unwrapped
@@ -240,13 +287,32 @@ class HighwayTally(Observer):
         if self.recorder is not None:
             self.recorder.start_episode(env, episode)
         self.episode, self.t = episode, 0
-        self.x0 = float(base.vehicle.position[0])
         self.road = read_road(base)
-        self.judge = FaultJudge(self.road.lane_width, self.road.n_lanes, 1.0 / base.config["policy_frequency"])
-        self.judge.start(base)
+        self.on_map = isinstance(self.road, RoadMap)
+        self.cars = guarded_cars(base)
+        self.multi = _multi(base)
+        if self.multi and self.per_car is None:
+            self.per_car = [dict({k: 0 for k in CAR_COUNTS}, distance=0.0) for _ in self.cars]
+        self.x0 = [self._along(v) for v in self.cars]
+        self.ending = {slot for slot, _ in self.road.ends} if self.on_map else set()
+        self.began_ending = [self._slot(v) in self.ending for v in self.cars]
+        self.judge = FaultJudge.for_env(base, 1.0 / base.config["policy_frequency"])
+        self.judge.start(base, self.cars)
+        self.slots = [self._body_slots(v) for v in self.cars] if self.on_map else None
+        self.checkers = None if self.overtake else [_SelfSafetyCheck(base, self.road, v, self.multi) for v in self.cars]
         self.inside = self._start_inside(env, base)
         self.totals["starts_outside"] += int(not self.inside)
-        self.checker = None if self.overtake else _SelfSafetyCheck(base, self.road)
+
+    def _along(self, v) -> float:
+        """Position along the road (along the lane's chain on a RoadMap)."""
+        x = float(v.position[0])
+        return self.road.longitudinal(v.lane_index, x, float(v.position[1])) if self.on_map else x
+
+    def _slot(self, v) -> int:
+        return self.road.slot_of(v.lane_index) if self.on_map else v.lane_index[2]
+
+    def _body_slots(self, v) -> frozenset:
+        return self.road.body_slots(float(v.position[0]), float(v.position[1]), float(v.heading), v.LENGTH, v.WIDTH)
 
     def _start_inside(self, env, base) -> bool:
         """The guardian's own test; without it, the same sets' test on a guardian built aside."""
@@ -263,24 +329,41 @@ class HighwayTally(Observer):
             from guardian.sensing import road_scene
 
             return bool(self._aside.inside(base.overtake_state(), road_scene(base, self.road)))
-        return _SelfSafetyCheck(base, self.road).inside(base)
+        return all(c.inside(base) for c in self.checkers)
 
     def before_step(self, env, obs, action) -> None:
-        base = env.unwrapped
-        self.lane_before = base.vehicle.lane_index[2]
+        self.lanes_before = [self._slot(v) for v in self.cars]
 
     def after_step(self, env, obs, action, info) -> None:
         base, totals = env.unwrapped, self.totals
         self.t += 1
         g = info.get("guardian")
-        _count_step(totals, g, base, self.lane_before)
-        entries_before = len(self.judge.ego_entries)
-        crash = self.judge.observe(base)
-        if g is not None:
-            held = set(g["lanes"]) | set(g["entered"])
-            for _, lane in self.judge.ego_entries[entries_before:]:
-                totals["unchecked_entries"] += int(self.road.itha_lane(lane) not in held)
-        totals["reversing_steps"] += int(base.vehicle.speed < -1e-9)
+        records = (g["agents"] if self.multi else [g]) if g else [None] * len(self.cars)
+        totals["steps"] += 1
+        for i, (v, r) in enumerate(zip(self.cars, records)):
+            changed = int(self._slot(v) != self.lanes_before[i])
+            totals["lane_changes"] += changed
+            _count_step(totals, r)
+            if self.multi:
+                self.per_car[i]["lane_changes"] += changed
+                if r:
+                    self.per_car[i]["override_steps"] += int(r["safety_override"])
+                    self.per_car[i]["refused_lane_changes"] += int(r["refused_lane_change"])
+        if g:
+            totals["reattachments"] += int(g["reattached"])
+        entries_before = [len(e) for e in self.judge.car_entries]
+        crashes = self.judge.observe_all(base)
+        for i, (v, r) in enumerate(zip(self.cars, records)):
+            if self.on_map:  # entries into slots (the judge's lines are not the guardian's lanes)
+                now = self._body_slots(v)
+                entered = [self.road.itha_lane(k) for k in now - self.slots[i]]
+                self.slots[i] = now
+            else:
+                entered = [self.road.itha_lane(lane) for _, lane in self.judge.car_entries[i][entries_before[i]:]]
+            if r is not None:
+                held = set(r["lanes"]) | set(r["entered"])
+                totals["unchecked_entries"] += sum(lane not in held for lane in entered)
+            totals["reversing_steps"] += int(v.speed < -1e-9)
         if self.overtake:
             from intention.models import unclip_standstill
 
@@ -292,34 +375,55 @@ class HighwayTally(Observer):
                     tr["state"], tr["input"], tr["next_state"])) > 0)
             totals["safety_violations"] += int(info["unsafe"])
         else:
-            totals["safety_violations"] += int(not self.checker.inside(base))
+            totals["safety_violations"] += sum(not c.inside(base) for c in self.checkers)
         if self.recorder is not None:
             self.recorder.log(env, self.episode, self.t, g)
-        if crash is not None:
-            self._count_crash(crash, g or {})
+        for crash in crashes:
+            self._count_crash(crash, records[crash.car] or {})
 
     def _count_crash(self, crash, g: dict) -> None:
         totals = self.totals
         totals["collisions"] += 1
-        at_fault = crash.fault == "ego"
+        at_fault = crash.guarded_at_fault
         if self.inside:
             totals["ego_at_fault_collisions"] += int(at_fault)
         else:
             totals["collisions_after_outside_starts"] += 1
             totals["ego_at_fault_after_outside_starts"] += int(at_fault)
-        totals["crashes"].append({"episode": self.episode, "step": self.t, "fault": crash.fault, "rule": crash.rule,
-                                  "partner": crash.partner, "start_inside": self.inside,
-                                  "level": g.get("level"), "reasons": g.get("reasons", [])})
+        row = {"episode": self.episode, "step": self.t, "fault": crash.fault, "rule": crash.rule,
+               "partner": crash.partner, "start_inside": self.inside,
+               "level": g.get("level"), "reasons": g.get("reasons", [])}
+        if self.multi:
+            row.update({"car": crash.car, "partner_car": crash.partner_car})
+            totals["guarded_pair_collisions"] = totals.get("guarded_pair_collisions", 0) + int(
+                crash.partner_car is not None)
+            for i in {crash.car} | ({crash.partner_car} if crash.partner_car is not None else set()):
+                self.per_car[i]["collisions"] += 1
+            blamed = crash.car if crash.fault == "ego" else crash.partner_car
+            if blamed is not None:
+                self.per_car[blamed]["at_fault_collisions"] += 1
+        totals["crashes"].append(row)
 
     def end_episode(self, env, episode) -> None:
         base = env.unwrapped
         if self.estimator is not None and self.estimator.identified_at is not None:
             self.identify.append(self.estimator.identified_at)
             self.totals["wrong_identifications"] += int(self.estimator.valid != [base.model.name])
-        self.distance += float(base.vehicle.position[0]) - self.x0
+        for i, v in enumerate(self.cars):
+            d = self._along(v) - self.x0[i]
+            merged = self.began_ending[i] and self._slot(v) not in self.ending
+            self.distance += d / len(self.cars)
+            if self.on_map:
+                self.totals["merges"] = self.totals.get("merges", 0) + int(merged)
+                self.totals["on_ending_lane"] = self.totals.get("on_ending_lane", 0) + int(self.began_ending[i])
+            if self.multi:
+                self.per_car[i]["distance"] += d
+                self.per_car[i]["merges"] += int(merged)
+                self.per_car[i]["on_ending_lane"] += int(self.began_ending[i])
         if self.guardian:
-            for k, v in _guardian_of(env).monitor.worst.items():
-                self.monitor_worst[k] = max(self.monitor_worst.get(k, 0.0), v)
+            for car in _guardian_of(env).cars:
+                for k, v in car.monitor.worst.items():
+                    self.monitor_worst[k] = max(self.monitor_worst.get(k, 0.0), v)
 
     def close(self) -> None:
         if self.recorder is not None:
@@ -328,26 +432,35 @@ class HighwayTally(Observer):
     def result(self, episodes: int) -> dict:
         """The counts, each by its rule.
 
-        * ``collisions``: episodes whose ego crashed (highway-env's crash flag, which also fires on
-          its one-step extrapolation of the bodies). ``ego_at_fault_collisions``: of those starting
-          inside the guardian's invariant sets, the ones ``guardian.judge.FaultJudge`` gives to the
-          ego; crashes after a start outside are counted apart (``collisions_after_outside_starts``,
-          ``ego_at_fault_after_outside_starts``). ``starts_outside``: episodes whose start lay
-          outside the sets (with the guardian, its own test; without, self-safety towards the cars
-          ahead on highway-v0).
+        * ``collisions``: crashes of guarded cars (highway-env's crash flag, which also fires on its
+          one-step extrapolation of the bodies); with one ego, episodes whose ego crashed; with several
+          controlled cars, a crash between two of them counts once. ``ego_at_fault_collisions``: of those in
+          episodes starting inside the guardian's invariant sets (every guarded car's start), the ones
+          ``guardian.judge.FaultJudge`` gives to a guarded car (the one judged, or a guarded partner); crashes
+          after a start outside are counted apart (``collisions_after_outside_starts``,
+          ``ego_at_fault_after_outside_starts``). ``starts_outside``: episodes whose start lay outside the
+          sets for some guarded car (with the guardian, its own test; without, self-safety towards the cars
+          ahead).
         * ``safety_violations``: steps ending outside the safe set (6.8) (HighwayOvertake) or with no
-          self-safe input left (highway-v0), with or without the guardian.
-        * ``unchecked_entries``: lanes the ego's body began to overlap in a step whose record lists the
-          lane neither among the lanes the guardian held the ego in nor among the entries it checked and
-          found responsible.
-        * ``reversing_steps``: steps ending with a negative ego speed. ``unsupervised_steps``:
+          self-safe input left (highway-env roads; per guarded car), with or without the guardian.
+        * ``unchecked_entries``: lanes a guarded car's body began to overlap in a step whose record lists the
+          lane neither among the lanes the guardian held the car in nor among the entries it checked and
+          found responsible (on roads beyond one straight segment: slots of ``guardian.roads``, the body
+          unwidened).
+        * ``reversing_steps``: steps ending with a negative speed (per guarded car). ``unsupervised_steps``:
           simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
           guardian found the ego reset or replaced behind its back.
         * ``override_steps``: policy steps the guardian changed for safety; ``model_clip_steps``:
           simulation steps whose only change was a clip to the model's bounds (highway-env's top speed);
           ``clipped_sim_steps``, ``refused_lane_changes``, ``follower_dropped_steps``, ``conflict_steps``,
           ``failsafe_steps``: from ``info["guardian"]``; ``lane_changes``: policy
-          steps whose lane index changed; ``distance_mean``: mean distance along the road per episode.
+          steps whose lane index (slot) changed; ``distance_mean``: mean distance along the road per episode
+          and guarded car. With several guarded cars every per-step count is summed over the cars.
+        * On roads beyond one straight segment: ``on_ending_lane``: guarded cars that began an episode on a
+          lane that ends (an on-ramp's); ``merges``: those of them on a lane that goes on at the episode's end.
+        * With several controlled cars: ``guarded_cars``, ``guarded_pair_collisions`` (crashes between two
+          guarded cars) and ``agents``: per car (in highway-env's controlled order) its collisions,
+          at-fault collisions, lane changes, overrides, refusals, merges and mean distance.
         """
         totals = self.totals
         totals["episodes"] = episodes
@@ -364,13 +477,19 @@ class HighwayTally(Observer):
             ident = self.identify
             totals["mean_steps_to_identify_intention"] = float(np.mean(ident)) if ident else None
             totals["identified_fraction"] = len(ident) / episodes
+        if self.multi:
+            totals["guarded_cars"] = len(self.per_car)
+            totals.setdefault("guarded_pair_collisions", 0)
+            totals["agents"] = [dict({k: c[k] for k in CAR_COUNTS}, distance_mean=c["distance"] / episodes)
+                                for c in self.per_car]
         return totals
 
 
 class _SelfSafetyCheck:
-    """Whether the highway-v0 ego has a self-safe input (7.4) towards the cars ahead in its lanes."""
+    """Whether a guarded car has a self-safe input (7.4) towards the cars ahead in its lanes (and, on a
+    ``RoadMap``, its lane's end)."""
 
-    def __init__(self, base, road):
+    def __init__(self, base, road, car=None, multi: bool = False):
         from guardian.config import GuardianConfig
         from guardian.traffic import TrafficSupervisor
         from itha.car_following import CarFollowingParams
@@ -378,24 +497,30 @@ class _SelfSafetyCheck:
         c = GuardianConfig()
         self.dt = 1.0 / base.config["simulation_frequency"]
         self.road, self.accel = road, c.traffic_accel
+        self.car = base.vehicle if car is None else car
+        self.guarded = frozenset(id(v) for v in guarded_cars(base)) if multi else frozenset()
         self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
                                                             u_min=-c.traffic_accel, u_max=c.traffic_accel,
                                                             d_min=-c.traffic_accel, d_max=c.traffic_accel))
 
     def inside(self, base) -> bool:
         from guardian.judge import body_lanes
+        from guardian.roads import RoadMap
         from guardian.sensing import road_scene
 
-        ego = base.vehicle
-        lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
-        speeds, _ = self.traffic.self_safe_speeds(road_scene(base, self.road, {self.road.itha_lane(i) for i in lanes}))
+        ego = self.car
+        if isinstance(self.road, RoadMap):
+            lanes = self.road.body_slots(float(ego.position[0]), float(ego.position[1]), float(ego.heading),
+                                         ego.LENGTH, ego.WIDTH) or {self.road.slot_of(ego.lane_index)}
+        else:
+            lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
+        scene = road_scene(base, self.road, {self.road.itha_lane(i) for i in lanes}, ego=ego, guarded=self.guarded)
+        speeds, _ = self.traffic.self_safe_speeds(scene)
         v, reach = float(ego.speed), self.accel * self.dt
         return any(max(lo, v - reach) <= min(hi, v + reach) for lo, hi in speeds)
 
 
-def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:
-    totals["steps"] += 1
-    totals["lane_changes"] += int(base.vehicle.lane_index[2] != lane_before)
+def _count_step(totals: dict, g: dict | None) -> None:
     if not g:
         return
     totals["override_steps"] += int(g["safety_override"])
@@ -407,7 +532,6 @@ def _count_step(totals: dict, g: dict | None, base, lane_before) -> None:
     totals["traffic_model_violation_steps"] += int(mv["traffic"] > 0)
     for k in ("follower_dropped_steps", "conflict_steps", "failsafe_steps", "unsupervised_steps"):
         totals[k] += g[k]
-    totals["reattachments"] += int(g["reattached"])
 
 
 def _guardian_of(env):

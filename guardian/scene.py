@@ -1,9 +1,12 @@
 """The road at one instant as the guardian's decisions read it: the ego and the other cars as ITHA
 agents (7.3).
 
-Positions are front bumpers along the direction of travel; lanes are ITHA numbers (1 = rightmost);
-a car changing lanes occupies both. Built from a simulator by ``guardian.sensing`` and by hand in
-the tests: no simulator in here.
+Positions are front bumpers along the direction of travel (on roads beyond one straight segment: the
+longitudinal coordinate along the car's lane, see ``guardian.roads``); lanes are ITHA numbers
+(1 = rightmost); a car changing lanes occupies both. A car that ``announces`` takes part in the ordered
+over-approximation (another guarded car: it announces its lane changes in Example 8's order, or yields);
+every other car (highway-env's IDM traffic, an obstacle, a lane's end) announces nothing. Built from a
+simulator by ``guardian.sensing`` and by hand in the tests: no simulator in here.
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ class Car:
     lanes: frozenset    # ITHA lane numbers the car occupies (1 = rightmost)
     length: float       # [m]
     name: str = ""
+    announces: bool = False   # takes part in the ordered over-approximation (a guarded car)
 
 
 @dataclass(frozen=True)
@@ -30,7 +34,7 @@ class Scene:
     def with_ego_lanes(self, lanes) -> "Scene":
         """The same road with the ego occupying ``lanes`` (e.g. where it may be after a step)."""
         e = self.ego
-        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name), self.others, self.n_lanes)
+        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name, e.announces), self.others, self.n_lanes)
 
     def leader(self, lane: int):
         """The nearest car in ``lane`` whose front is at or ahead of the ego's (None if there is none)."""

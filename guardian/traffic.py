@@ -14,7 +14,9 @@ own input exactly:
 * ``entry``: whether entering a lane is ρ̂-responsible (Definition 22, via
   ``itha.responsibility.EgoSupervisor``), with the next speeds that make it so.
 
-A car that is changing lanes occupies both lanes.
+A car that is changing lanes occupies both lanes. Under the ordered ρ̂ the cars that announce (other
+guarded cars: each is where it is, or where it has announced it goes, and those after the ego in
+Example 8's order yield) are exact; every other car is over-approximated as the trivial ρ̂ does.
 """
 from __future__ import annotations
 
@@ -106,8 +108,11 @@ class TrafficSupervisor:
         if abs(lane - home) != 1:
             raise ValueError(f"lane {lane} is not next to lane {home}")
         p, v, ln, lengths = [ego.front], [min(ego.speed, self.params.v_max)], [home], [ego.length]
+        silent = set()
         for c in scene.others:
             for k in sorted(c.lanes):
+                if not c.announces:
+                    silent.add(len(p))
                 p.append(c.front)
                 v.append(min(max(c.speed, 0.0), self.params.v_max))
                 ln.append(k)
@@ -115,6 +120,6 @@ class TrafficSupervisor:
         prm = HighwayParams(car_following=self.params, n_lanes=scene.n_lanes, n_cars=len(p) - 1,
                             car_length=ego.length, ego_lane=home)
         sup = EgoSupervisor(prm, self.S, self.overapprox, others_invariant=self.S_others)
-        speeds, reason = sup.lane_change_speeds(p, v, ln, 0, LEFT if lane > home else RIGHT, {}, lengths)
+        speeds, reason = sup.lane_change_speeds(p, v, ln, 0, LEFT if lane > home else RIGHT, {}, lengths, silent)
         return EntryVerdict(lane, bool(speeds), speeds, reason)
 

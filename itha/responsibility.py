@@ -21,6 +21,10 @@ Which cars "can" lead or follow depends on ``ρ̂``:
   ahead first, on ties the slower lane first): the cars before E in the order
   have announced their triggers; the cars after E yield (they must be
   responsible towards E), so only the actual leader and the nearest follower matter.
+  Cars that take no part in the order (``silent``: traffic that announces nothing,
+  such as highway-env's IDM cars) are over-approximated as ``trivial`` does: they
+  may be in their lane or a neighbouring one at t+1, and each may be the one that
+  leads, follows or leaves, up to the nearest car that takes part.
 
 The road (global and local states, resolution) is ``itha.road``.
 """
@@ -69,20 +73,21 @@ class EgoSupervisor:
             out.append(self.lane_change(p, v, lane, ego, trig, next_lanes or {}))
         return out
 
-    def lane_change(self, p, v, lane, ego, trig, announced, lengths=None) -> ChoiceVerdict:
+    def lane_change(self, p, v, lane, ego, trig, announced, lengths=None, silent=()) -> ChoiceVerdict:
         """Is the ego's lane change ``trig`` ρ̂-responsible, and with which inputs?
 
         ``p`` are front-bumper positions along the direction of travel; ``lengths`` the cars'
         lengths (default: ``car_length`` for all); ``announced`` maps car index to its trigger for
-        the cars before the ego in the order (ordered ρ̂).
+        the cars before the ego in the order (ordered ρ̂); ``silent`` are the cars that take no part in
+        the order (over-approximated as ``trivial`` does, see the module docstring).
         """
-        speeds, reason = self.lane_change_speeds(p, v, lane, ego, trig, announced, lengths)
+        speeds, reason = self.lane_change_speeds(p, v, lane, ego, trig, announced, lengths, silent)
         if not speeds:
             return ChoiceVerdict(trig, [], reason)
         inputs = [iv for lo, hi in speeds for iv in speeds_to_inputs(self.params.car_following, v[ego], [(lo, hi)])]
         return ChoiceVerdict(trig, inputs, "" if inputs else "no input of U reaches a responsible speed")
 
-    def lane_change_speeds(self, p, v, lane, ego, trig, announced, lengths=None):
+    def lane_change_speeds(self, p, v, lane, ego, trig, announced, lengths=None, silent=()):
         """The ego's next speeds that make the lane change ``trig`` ρ̂-responsible, and why none do.
 
         Speeds rather than inputs, so that an ego whose input maps to its next speed otherwise
@@ -102,14 +107,24 @@ class EgoSupervisor:
             """Can car k be on lane ln at t+1 (under ρ̂)?"""
             if k in announced:
                 return lane[k] + LANE_SHIFT[announced[k]] == ln
-            if trivial:
+            if trivial or k in silent:
                 return abs(lane[k] - ln) <= 1
             return lane[k] == ln  # later cars yield: they stay as far as E is concerned
+
+        def nearest(cands, key):
+            """Ordered ρ̂: the candidates that can be the one, nearest first: each silent car may be
+            elsewhere at t+1, so the candidates up to the nearest car that takes part in the order."""
+            out = []
+            for k in sorted(cands, key=key):
+                out.append(k)
+                if k not in silent:
+                    break
+            return out
 
         # 1. the ego's own reset: every car that can lead it in the target lane.
         leads = [k for k in range(n) if k != ego and pn[k] >= pn[ego] and may_be_in(k, target)]
         if not trivial:
-            leads = sorted(leads, key=lambda k: pn[k])[:1]
+            leads = nearest(leads, lambda k: pn[k])
         for k in leads:
             speeds = self.S.speed_intervals(pn[k] - lengths[k] - pn[ego], float(cf.worst_lead_speed(v[k])))
             allowed = intersect_intervals(allowed, speeds)
@@ -118,7 +133,7 @@ class EgoSupervisor:
         # 2. cars that can get the ego as leader: in the target lane behind it at t+1.
         followers = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, target)]
         if not trivial:
-            followers = sorted(followers, key=lambda k: -pn[k])[:1]
+            followers = nearest(followers, lambda k: -pn[k])
         So, co = self.S_others, self.S_others.params
         for k in followers:
             v_fast = min(v[k] + dt * co.u_max, co.v_max)
@@ -129,12 +144,12 @@ class EgoSupervisor:
         old = lane[ego]
         behind = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, old)]
         if not trivial:
-            behind = sorted(behind, key=lambda k: -pn[k])[:1]
+            behind = nearest(behind, lambda k: -pn[k])
         for c in behind:
             v_fast = min(v[c] + dt * co.u_max, co.v_max)
             new_leads = [k for k in range(n) if k not in (ego, c) and pn[k] >= pn[ego] and may_be_in(k, old)]
             if not trivial:
-                new_leads = sorted(new_leads, key=lambda k: pn[k])[:1]
+                new_leads = nearest(new_leads, lambda k: pn[k])
             for k in new_leads:
                 x = (v_fast, pn[k] - lengths[k] - pn[c], float(co.worst_lead_speed(v[k])))
                 if not So.contains(np.array([x]))[0]:

@@ -10,7 +10,7 @@ COMMANDS = {  # every command and its options, as the README documents them
     ("rcis", "plot"): {"--out"},
     ("rollout",): {"--env", "--agent", "--policy", "--algo", "--action", "--intention", "--episodes", "--seed",
                    "--disturbance", "--traffic", "--env-config", "--horizon", "--no-guardian", "--no-intention",
-                   "--safe-start", "--rerun", "--video", "--json"},
+                   "--safe-start", "--rerun", "--video", "--controlled", "--overapprox", "--json"},
     ("falsify",): {"--episodes", "--seed", "--only", "--agent", "--no-guardian", "--workers", "--scheduler",
                    "--cache-dir", "--json"},
     ("itha", "highway"): {"--runs", "--steps", "--seed", "--overapprox", "--set", "--rerun", "--json"},

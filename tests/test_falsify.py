@@ -63,3 +63,44 @@ def test_the_command_refuses_nonsense(argv, message, capsys):
 
     assert main(["falsify", *argv]) == 2
     assert message in capsys.readouterr().err
+
+
+# ---- the roads beyond one straight segment (--only roads) ------------------------------------------------
+def test_the_roads_cells_are_apart_from_the_default_matrix():
+    default, roads = matrix(), matrix(only="roads")
+    assert not {c.env for c in default} & {"merge-v0", "merge-generic-v0", "exit-v0", "guardian/Merge-v0"}
+    assert {c.env for c in roads} == {"merge-v0", "merge-generic-v0", "exit-v0", "guardian/Merge-v0"}
+    multi = [c for c in roads if c.controlled is not None]
+    assert {c.controlled for c in multi} == {2, 4} and {c.overapprox for c in multi} == {"trivial", "ordered"}
+    assert {c.config["traffic"] for c in multi} == {"easy", "hard"}
+    assert {c.action for c in roads if c.env == "exit-v0"} == {"continuous", "meta"}
+    assert not any(c.guardian for c in matrix(guardian=False, only="roads"))
+
+
+def test_a_multi_agent_cells_command_replays_its_episode(capsys):
+    from guardian.cli import main
+
+    cell = next(c for c in matrix(only="roads") if c.controlled == 2 and c.overapprox == "ordered"
+                and c.agent == "merge" and c.action == "meta" and c.config["traffic"] == "hard")
+    direct = run_episode(cell, 3)
+    assert "exception" not in direct, direct.get("exception")
+    argv = shlex.split(cell.command(3))[2:]
+    assert main(["rollout", *argv]) == 0
+    replayed = json.loads(capsys.readouterr().out)
+    assert {k: replayed[k] for k in COUNTED} == {k: direct[k] for k in COUNTED}
+    assert replayed["guarded_cars"] == 2 and replayed["overapprox"] == "ordered"
+
+
+def test_a_crash_between_two_guarded_cars_is_a_failure_whoever_the_judge_blames():
+    """The judged car ("ego") was not at fault, its partner, another guarded car, was: still a guarded car's
+    fault, so the campaign lists it."""
+    cell = next(c for c in matrix(only="roads") if c.controlled == 2)
+    r = {k: 0 for k in COUNTED}
+    r["crashes"] = [{"fault": "other", "rule": "entry", "start_inside": True, "car": 0, "partner_car": 1}]
+    camp = Campaign()
+    camp.add(cell, 0, r)
+    assert [f["kind"] for f in camp.failures] == ["at-fault collision"]
+    r["crashes"] = [{"fault": "other", "rule": "entry", "start_inside": True, "car": 0, "partner_car": None}]
+    camp = Campaign()
+    camp.add(cell, 0, r)
+    assert camp.failures == []

@@ -90,10 +90,12 @@ def test_unknown_agent_is_refused():
 
 
 @pytest.mark.parametrize("env_id,config,match", [
-    ("highway-v0", {"action": {"type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction"}}},
-     "action.type"),
+    ("highway-v0", {"action": {"type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction",
+                                                                           "lateral": False}}}, "five meta actions"),
     ("highway-v0", {"action": {"type": "DiscreteMetaAction", "lateral": False}}, "five meta actions"),
-    ("merge-v0", {}, "straight multi-lane road"),
+    ("roundabout-v0", {}, "cannot reason about this env's road: lane .* runs against the direction of travel"),
+    ("two-way-v0", {}, "cannot reason about this env's road"),
+    ("lane-keeping-v0", {}, "cannot reason about this env's road: no lane runs straight along"),
 ])
 def test_configs_it_cannot_supervise_are_refused(env_id, config, match):
     with pytest.raises(ConfigError, match=match):

@@ -105,6 +105,67 @@ def test_trivial_is_more_conservative_than_ordered(S):
     assert more > 0
 
 
+def test_silent_cars_are_over_approximated_as_trivial_does_by_brute_force(S):
+    """Ordered ρ̂ with cars that announce nothing (highway-env's IDM traffic): those may do anything and the
+    ego answers for them; the cars that take part announce (ahead of the ego: they stay) or yield (behind it
+    in the order: a mover answers for itself). Every allowed lane change survives every joint trigger."""
+    rng = np.random.default_rng(17)
+    checked = 0
+    for trial in range(200):
+        p, v, lane, _ = initial_traffic(SMALL, S, rng)
+        v = [float(rng.uniform(0, 20)) for _ in v]
+        if not S.contains(local_states(SMALL, p, v, lane)).all():
+            continue
+        silent = {k for k in range(1, len(p)) if rng.uniform() < 0.5}
+        order = example8_order(p, lane)
+        ahead = {k for k in order[:order.index(0)] if k not in silent}
+        sup = EgoSupervisor(SMALL, S, "ordered")
+        for vd in sup.choices(p, v, lane, 0, {k: STAY for k in ahead}):
+            if vd.trigger == STAY:
+                continue
+            vd = sup.lane_change(p, v, lane, 0, vd.trigger, {k: STAY for k in ahead}, silent=silent)
+            if not vd.inputs:
+                continue
+            options = [[STAY] if k in ahead else [t for t in LANE_SHIFT if 1 <= lane[k] + LANE_SHIFT[t] <= SMALL.n_lanes]
+                       for k in range(1, len(p))]
+            for lo, hi in vd.inputs:
+                for u in (lo, hi):
+                    for triggers in itertools.product(*options):
+                        movers_answer = {k for k in range(1, len(p)) if k not in silent}
+                        bad = [(i, x) for i, x in _violations(S, "trivial", p, v, lane, vd.trigger, u, triggers)
+                               if not (i in movers_answer and triggers[i - 1] != STAY)]
+                        assert not bad, (vd.trigger, u, triggers, silent, bad)
+                        checked += 1
+    assert checked > 3000
+
+
+def test_with_every_car_silent_ordered_allows_what_trivial_allows(S):
+    rng = np.random.default_rng(19)
+    differ = 0
+    for trial in range(60):
+        p, v, lane, _ = initial_traffic(SMALL, S, rng)
+        everyone = set(range(1, len(p)))
+        for trig in ("left", "right"):
+            t = EgoSupervisor(SMALL, S, "trivial").lane_change_speeds(p, v, lane, 0, trig, {})
+            o = EgoSupervisor(SMALL, S, "ordered").lane_change_speeds(p, v, lane, 0, trig, {}, silent=everyone)
+            plain = EgoSupervisor(SMALL, S, "ordered").lane_change_speeds(p, v, lane, 0, trig, {})
+            assert o == t
+            differ += plain != t
+    assert differ > 0  # the silent cars are what made the difference
+
+
+def test_a_silent_car_ahead_does_not_hide_the_car_behind_it(S):
+    """Target lane: a silent car 16 m ahead at 25 m/s (it may leave) and a standing car that takes part 32 m
+    ahead: the ego's speed must keep it safe towards the standing car too (as trivial does); with the silent
+    car taking part, only the nearer car matters."""
+    p, v, lane = [0.0, 16.0, 32.0], [20.0, 25.0, 0.0], [2, 3, 3]
+    sup = EgoSupervisor(SMALL, S, "ordered")
+    silent, _ = sup.lane_change_speeds(p, v, lane, 0, LEFT, {}, silent={1})
+    taking_part, _ = sup.lane_change_speeds(p, v, lane, 0, LEFT, {})
+    trivial, _ = EgoSupervisor(SMALL, S, "trivial").lane_change_speeds(p, v, lane, 0, LEFT, {})
+    assert silent == trivial and max(hi for _, hi in silent) < max(hi for _, hi in taking_part) - 5.0
+
+
 def test_qp_of_7_7_matches_cvxpy():
     cp = pytest.importorskip("cvxpy")
     prm = HighwayParams()

@@ -116,3 +116,144 @@ def test_body_lanes_follow_the_heading():
     assert body_lanes(car, LANE, 3) == {0}
     car.heading = 0.5  # a yawed body reaches further sideways
     assert body_lanes(car, LANE, 3) == {0, 1}
+
+
+# ---- roads beyond one straight segment: highway-env's own lanes, grouped into lines ------------------------
+from highway_env.road.lane import CircularLane, SineLane, StraightLane  # noqa: E402
+from highway_env.road.road import RoadNetwork  # noqa: E402
+
+from guardian.judge import Lines  # noqa: E402
+
+
+def _merge_network():
+    """merge-v0's shape: one main lane (y = 4) in three segments and an on-ramp whose parallel part (y = 8,
+    x 230..310) continues a sine taper."""
+    net = RoadNetwork()
+    net.add_lane("a", "b", StraightLane([0, 4], [230, 4]))
+    net.add_lane("b", "c", StraightLane([230, 4], [310, 4]))
+    net.add_lane("c", "d", StraightLane([310, 4], [460, 4]))
+    net.add_lane("j", "k", StraightLane([0, 14.5], [150, 14.5]))
+    net.add_lane("k", "b", SineLane([150, 11.25], [230, 11.25], 3.25, 2 * np.pi / 160, np.pi / 2))
+    net.add_lane("b", "c", StraightLane([230, 8], [310, 8]))
+    return net
+
+
+class LaneCar(Car):
+    def __init__(self, x, y, speed=20.0, heading=0.0, lane_index=("a", "b", 0)):
+        super().__init__(x, y, speed, heading)
+        self.lane_index = lane_index
+
+
+def _network_judge(base, net, dt=0.1, guarded=None):
+    j = FaultJudge(4.0, 0, dt, Lines(net))
+    j.start(base, guarded)
+    return j
+
+
+def test_lines_join_lanes_that_continue_each_other():
+    lines = Lines(_merge_network())
+    main = {lines.line[("a", "b", 0)], lines.line[("b", "c", 0)], lines.line[("c", "d", 0)]}
+    ramp = {lines.line[("j", "k", 0)], lines.line[("k", "b", 0)], lines.line[("b", "c", 1)]}
+    assert len(main) == 1 and len(ramp) == 1 and main != ramp
+
+
+def test_driving_on_across_segments_is_no_lane_entry():
+    """The ego drives from segment a-b into b-c along the main lane and runs into a car ahead: a rear-end,
+    its fault, not an entry by either."""
+    net = _merge_network()
+    ego, ahead = LaneCar(226.0, 4.0, lane_index=("a", "b", 0)), LaneCar(232.0, 4.0, lane_index=("b", "c", 0))
+    base = _scene(ego, ahead)
+    j = _network_judge(base, net)
+    ego.position[0], ego.lane_index = 227.5, ("b", "c", 0)
+    crash = _crash(j, base, ego, ahead)
+    assert (crash.fault, crash.rule) == ("ego", "rear_end") and not j.ego_entries
+
+
+def test_a_car_merging_from_the_ramp_is_the_entrant():
+    net = _merge_network()
+    ego, merger = LaneCar(250.0, 4.0, lane_index=("b", "c", 0)), LaneCar(256.0, 8.0, lane_index=("b", "c", 1))
+    base = _scene(ego, merger)
+    j = _network_judge(base, net)
+    merger.position[1] = 6.5  # its body now overlaps the main lane's strip
+    j.observe(base)
+    ego.position[0] = 251.5
+    crash = _crash(j, base, ego, merger)
+    assert (crash.fault, crash.rule) == ("other", "entry")
+    # the same contact judged with the merging car in the ego's place: its fault
+    ego, merger = LaneCar(250.0, 4.0, lane_index=("b", "c", 0)), LaneCar(256.0, 8.0, lane_index=("b", "c", 1))
+    base = _scene(merger, ego)
+    j = _network_judge(base, net)
+    merger.position[1] = 6.5
+    j.observe(base)
+    crash = _crash(j, base, ego, merger)
+    assert (crash.fault, crash.rule) == ("ego", "entry")
+
+
+def test_rear_end_along_a_curve_follows_the_lane():
+    """On an exit's curve where the lane heads 60 degrees off x: the car further along the lane is ahead."""
+    arc = CircularLane([500, 174], 150, 3 * np.pi / 2, 2 * np.pi)
+    net = RoadNetwork()
+    net.add_lane("2", "exit", arc)
+    s_behind, s_ahead = 150 * np.pi / 3 - 6.0, 150 * np.pi / 3
+    (xb, yb), (xa, ya) = arc.position(s_behind, 0), arc.position(s_ahead, 0)
+    follower = LaneCar(xb, yb, heading=float(arc.heading_at(s_behind)), lane_index=("2", "exit", 0))
+    leader = LaneCar(xa, ya, heading=float(arc.heading_at(s_ahead)), lane_index=("2", "exit", 0))
+    for ego, other, fault in ((follower, leader, "ego"), (leader, follower, "other")):
+        base = _scene(ego, other)
+        j = _network_judge(base, net)
+        crash = _crash(j, base, ego, other)
+        assert (crash.fault, crash.rule) == (fault, "rear_end")
+        ego.crashed = other.crashed = False
+
+
+def test_a_crash_between_two_guarded_cars_is_judged_once():
+    net = _merge_network()
+    a, b, idm = (LaneCar(100.0, 4.0, lane_index=("a", "b", 0)), LaneCar(106.0, 4.0, lane_index=("a", "b", 0)),
+                 LaneCar(300.0, 4.0, lane_index=("b", "c", 0)))
+    base = _scene(a, b, idm)
+    j = _network_judge(base, net, guarded=[a, b])
+    a.position[0] = 101.5
+    a.crashed = b.crashed = True
+    (crash,) = j.observe_all(base)
+    assert (crash.car, crash.partner_car, crash.fault, crash.rule) == (0, 1, "ego", "rear_end")
+    assert crash.guarded_at_fault
+    assert j.observe_all(base) == []
+
+
+def test_the_straight_road_keeps_its_judge():
+    import gymnasium as gym
+    import highway_env  # noqa: F401
+
+    env = gym.make("highway-v0", config={"lanes_count": 3})
+    env.reset(seed=0)
+    j = FaultJudge.for_env(env.unwrapped, 1.0)
+    assert j.lines is None and (j.lane_width, j.n_lanes) == (4.0, 3)
+    env = gym.make("merge-v0")
+    env.reset(seed=0)
+    assert FaultJudge.for_env(env.unwrapped, 1.0).lines is not None
+
+
+def test_sideways_on_a_curve_is_measured_against_the_lane():
+    """Two lanes curving 60 degrees off x, both bodies already over the border (no new entry): the ego only
+    follows its lane (its world y changes by 1.7 m), the other cuts 1 m towards it across its lane: the
+    other moved sideways. (World y alone would blame the ego.)"""
+    outer, inner = CircularLane([500, 174], 150, 3 * np.pi / 2, 2 * np.pi), CircularLane([500, 174], 146, 3 * np.pi / 2, 2 * np.pi)
+    net = RoadNetwork()
+    net.add_lane("2", "x", outer)
+    net.add_lane("2", "x", inner)
+    phase = 11 * np.pi / 6
+
+    def at(radius, ds=0.0):
+        phi = phase + ds / radius
+        return np.array([500 + radius * np.cos(phi), 174 + radius * np.sin(phi)]), float(phi + np.pi / 2)
+
+    (pe, he), (po, ho) = at(148.6), at(145.6)
+    ego = LaneCar(*pe, heading=he, lane_index=("2", "x", 0))
+    other = LaneCar(*po, heading=ho, lane_index=("2", "x", 1))
+    base = _scene(ego, other)
+    j = _network_judge(base, net)
+    (pe, he), (po, ho) = at(148.6, 2.0), at(146.6, 2.0)   # the ego along its lane, the other 1 m outwards
+    ego.position, ego.heading, other.position, other.heading = pe, he, po, ho
+    assert abs(pe[1] - j.pos[id(ego)][1]) > 1.5
+    crash = _crash(j, base, ego, other)
+    assert (crash.fault, crash.rule) == ("other", "side")

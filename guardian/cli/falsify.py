@@ -60,8 +60,10 @@ def add_commands(sub) -> None:
     p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
     p.add_argument("--episodes", type=int, default=5, help="episodes per cell of the matrix (default 5)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--only", choices=["overtake", "highway"], default=None,
-                   help="only guardian/HighwayOvertake-v0, or only the highway-v0 family")
+    p.add_argument("--only", choices=["overtake", "highway", "roads"], default=None,
+                   help="only guardian/HighwayOvertake-v0, or only the highway-v0 family (the default matrix is "
+                        "both), or the roads beyond one straight segment and several guarded cars (merge-v0, "
+                        "merge-generic-v0, exit-v0, guardian/Merge-v0)")
     p.add_argument("--agent", action="append", choices=ROAD_AGENTS + MPC_AGENTS, default=None,
                    help="only cells of this agent (repeatable)")
     p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")

@@ -1,7 +1,12 @@
 """``guardian rollout``: supervised rollouts of any supported environment (one loop, one tally).
 
 ``--env`` is ``guardian/Overtake-v0`` (the default: Section 6.5.3's two cars), ``guardian/HighwayOvertake-v0``
-(the overtake among traffic) or a ``highway-v0``-family id. ``--agent`` names a driver of the agent
+(the overtake among traffic), a ``highway-v0``-family id, ``merge-v0``, ``merge-generic-v0``, ``exit-v0`` or
+``guardian/Merge-v0`` (merge-v0's road for both action types and several controlled cars). ``--controlled N``
+gives N controlled cars (highway-env's ``MultiAgentAction``), each with its own agent and guardian;
+``--overapprox ordered`` lets the guarded cars announce their lane changes to each other (Example 8's
+order), ``trivial`` assumes nothing; the JSON then has the counts summed over the cars and per car
+(``agents``). ``--agent`` names a driver of the agent
 registry, ``all`` (Section 6.5.3's four: mpc, bad, careful, random) or is replaced by ``--policy``, a
 stable-baselines3 policy file. Options that do not apply to the environment are refused.
 """
@@ -28,7 +33,7 @@ def cmd_rollout(args) -> int:
     from guardian.rollout import OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, highway_rollouts
 
     if args.env not in gym.registry:
-        known = sorted(k for k in gym.registry if k.startswith(("highway", "guardian/")))
+        known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "exit", "guardian/")))
         return usage_error(args, f"unknown environment {args.env!r}; ids: {', '.join(known)}")
     overtake = args.env in OVERTAKE_ENVS
     refused = _inapplicable(args, overtake)
@@ -56,7 +61,7 @@ def cmd_rollout(args) -> int:
     library = load_library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
     from guardian.config import GuardianConfig
 
-    gcfg = GuardianConfig(use_intention=not args.no_intention, horizon=args.horizon)
+    gcfg = GuardianConfig(use_intention=not args.no_intention, horizon=args.horizon, overapprox=args.overapprox)
     runs = []
     for agent in agents:
         for intention in intentions:
@@ -68,11 +73,12 @@ def cmd_rollout(args) -> int:
                                      safe_start=args.safe_start, env_config=env_config, horizon=args.horizon,
                                      progress=progress_bar(label), rerun_path=args.rerun,
                                      video_dir=(args.video / "-".join(x for x in (intention, agent.split("/")[-1]) if x))
-                                     if args.video else None, policy_algo=args.algo)
+                                     if args.video else None, policy_algo=args.algo, controlled=args.controlled)
             except (ConfigError, ValueError) as exc:
                 return usage_error(args, str(exc))
             r.update({"env": args.env, "agent": agent, "action": args.action or "default",
-                      "guardian": not args.no_guardian,
+                      "guardian": not args.no_guardian, "controlled": args.controlled or 1,
+                      "overapprox": args.overapprox,
                       "intention_aware": overtake and not args.no_guardian and not args.no_intention})
             if overtake:
                 r.update({"intention": intention, "disturbance": args.disturbance})
@@ -101,6 +107,10 @@ def _inapplicable(args, overtake: bool) -> str | None:
         return "--policy replaces --agent; give one of them"
     if args.algo is not None and args.policy is None:
         return "--algo names the algorithm of a --policy file"
+    if args.controlled is not None and (args.policy is not None or args.rerun is not None):
+        return "--policy and --rerun drive and record one car; they do not apply with --controlled"
+    if args.overapprox != "trivial" and (args.no_guardian or overtake):
+        return "--overapprox chooses how guarded cars on highway-env's roads over-approximate each other's lane changes"
     return None
 
 
@@ -147,7 +157,8 @@ def _env_class(env_id: str):
 def _summary(args, r: dict) -> str:
     head = " ".join(x for x in (args.env, r.get("intention"), r["agent"], f"guardian={'on' if r['guardian'] else 'off'}")
                     if x)
-    skip = {"env", "agent", "action", "guardian", "intention_aware", "disturbance", "intention", "crashes", "runs"}
+    skip = {"env", "agent", "action", "guardian", "intention_aware", "disturbance", "intention", "crashes", "runs",
+            "agents"}
     fields = [f"{k}={v:.1f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in skip]
     crashes = [f"  crash: episode {c['episode']} step {c['step']} fault={c['fault']} ({c['rule']}) "
                f"start_inside={c['start_inside']}" for c in r.get("crashes", [])]
@@ -159,9 +170,10 @@ def add_commands(sub) -> None:
                        parents=[library_options(), json_option()])
     p.add_argument("--env", default="guardian/Overtake-v0",
                    help="guardian/Overtake-v0 (default: the two cars of Section 6.5), guardian/HighwayOvertake-v0 "
-                        "(the overtake among traffic), highway-v0, highway-fast-v0, ...")
+                        "(the overtake among traffic), highway-v0, highway-fast-v0, ..., merge-v0, merge-generic-v0, "
+                        "exit-v0, guardian/Merge-v0")
     p.add_argument("--agent", default="random",
-                   help="random | reckless | idle | mpc | bad | careful | seek | brake_check | oscillate | hold | "
+                   help="random | reckless | idle | merge | mpc | bad | careful | seek | brake_check | oscillate | hold | "
                         "trap, or all (Section 6.5.3's mpc, bad, careful, random)")
     p.add_argument("--policy", type=Path, default=None, metavar="PATH.zip",
                    help="drive with a stable-baselines3 policy file instead of --agent")
@@ -170,6 +182,10 @@ def add_commands(sub) -> None:
                    help="the agent's action type (default: the env's own)")
     p.add_argument("--traffic", type=count(0), default=None,
                    help="other cars (guardian/HighwayOvertake-v0, the highway-v0 family)")
+    p.add_argument("--controlled", type=count(1), default=None, metavar="N",
+                   help="N controlled cars (MultiAgentAction), each with its own agent and guardian; highway-env roads")
+    p.add_argument("--overapprox", choices=["trivial", "ordered"], default="trivial",
+                   help="ordered: guarded cars announce their lane changes to each other (Example 8); trivial: none")
     p.add_argument("--env-config", action="append", metavar="KEY=VALUE", default=None,
                    help="a config key of the env (the value read as JSON), or a JSON object of them; repeatable")
     p.add_argument("--safe-start", action="store_true",

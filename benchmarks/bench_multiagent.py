@@ -1,0 +1,147 @@
+"""Many guarded cars on highway-env's on-ramp merge: trivial against ordered, beside Section 7.4.1.
+
+Run: python benchmarks/bench_multiagent.py [--episodes E] [--n 2 4 8] [--density easy medium hard]
+     [--agent merge] [--action meta] [--seed 0] [--no-unguarded] [--json]
+
+Every setting runs ``guardian rollout``'s loop (``guardian.rollout.highway_rollouts``) on ``guardian/Merge-v0``
+(merge-v0's road: two main lanes and an on-ramp that ends) with N controlled cars among the on-ramp
+merging reference's IDM traffic (easy 1-3, medium 2-4, hard 3-5 other cars; 20 s at 5 Hz, as there),
+each controlled car with its own agent and its own guardian, for ``trivial`` (no guarded car assumes
+anything of another) and ``ordered`` (guarded cars announce their lane changes in Example 8's order).
+The same seeds for every setting. An unguarded row per (N, density) is beside (``--no-unguarded`` drops it).
+
+Figures per setting, by ``HighwayTally.result``'s rules: episodes; mean distance per car and episode [m];
+lane changes and merges completed (cars that began on the ramp and ended on the main road) out of
+the cars that began on the ramp; policy steps overridden for safety (summed over the cars); collisions,
+those at a guarded car's fault (the independent fault judge, ``guardian.judge``) and those between two
+guarded cars; failsafe simulation steps. Cost: the guardian's decision per guarded car per simulation
+step (``Guardian._supervise_highway``: reading the scene and deciding; median and p99 in ms) beside the
+simulator's own simulation step (median, all cars), timed in a separate short run of each setting.
+
+The default agent is ``merge`` (on the ramp it asks for the main road, elsewhere for full speed): the
+cars' wish to merge is what the two over-approximations treat differently.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+
+import numpy as np
+
+warnings.filterwarnings("ignore", message=".*out of date.*")
+
+ENV = "guardian/Merge-v0"
+REFERENCE = {"duration": 20, "policy_frequency": 5}   # the merging reference's episodes
+
+
+def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: int, agent: str, action: str) -> dict:
+    from guardian.config import GuardianConfig
+    from guardian.rollout import highway_rollouts
+
+    guarded = overapprox is not None
+    r = highway_rollouts(ENV, agent, episodes, seed, action=action, controlled=n, guardian=guarded,
+                         env_config=dict(REFERENCE, traffic=density),
+                         guardian_config=GuardianConfig(overapprox=overapprox) if guarded else None)
+    return {"n": n, "density": density, "overapprox": overapprox or "unguarded", "episodes": episodes,
+            "distance_per_car": r["distance_mean"], "lane_changes": r["lane_changes"], "merges": r["merges"],
+            "on_ramp": r["on_ending_lane"], "override_steps": r["override_steps"], "collisions": r["collisions"],
+            "at_fault": r["ego_at_fault_collisions"] + r["ego_at_fault_after_outside_starts"],
+            "guarded_pairs": r["guarded_pair_collisions"], "starts_outside": r["starts_outside"],
+            "failsafe_steps": r["failsafe_steps"], "unchecked_entries": r["unchecked_entries"],
+            "crashes": r["crashes"]}
+
+
+def cost(n: int, density: str, overapprox: str, episodes: int, seed: int, agent: str, action: str) -> dict:
+    """Median and p99 of the guardian's decision per guarded car per simulation step, and the simulator's step."""
+    import gymnasium as gym
+
+    import envs  # noqa: F401
+    from envs.agents import make_agent
+    from guardian.config import GuardianConfig
+    from guardian.rollout import highway_env_config
+    from guardian.wrapper import Guardian
+
+    config = highway_env_config(ENV, action, extra=dict(REFERENCE, traffic=density), controlled=n)
+    env = Guardian(gym.make(ENV, config=config), None, GuardianConfig(overapprox=overapprox))
+    decide, sim = [], []
+    original = env._supervise_highway
+
+    def timed(*a):
+        t = time.perf_counter()
+        out = original(*a)
+        decide.append(time.perf_counter() - t)
+        return out
+    env._supervise_highway = timed
+    for ep in range(episodes):
+        obs, _ = env.reset(seed=seed + ep)
+        road = env.unwrapped.road
+        step = road.step
+
+        def timed_step(dt, _f=step):
+            t = time.perf_counter()
+            _f(dt)
+            sim.append(time.perf_counter() - t)
+        road.step = timed_step
+        act = make_agent(agent, env, np.random.default_rng([seed, ep]))
+        done = False
+        while not done:
+            obs, _, term, trunc, _ = env.step(act(obs))
+            done = term or trunc
+    env.close()
+    d, s = np.array(decide) * 1e3, np.array(sim) * 1e3
+    return {"decision_median_ms": float(np.median(d)), "decision_p99_ms": float(np.percentile(d, 99)),
+            "decisions": int(d.size), "simulation_step_median_ms": float(np.median(s))}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--cost-episodes", type=int, default=2)
+    p.add_argument("--n", type=int, nargs="+", default=[2, 4, 8])
+    p.add_argument("--density", nargs="+", default=["easy", "medium", "hard"])
+    p.add_argument("--agent", default="merge")
+    p.add_argument("--action", choices=["meta", "continuous"], default="meta")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-unguarded", action="store_true")
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    rows = []
+    if not args.json:
+        print(HEADER)
+        print("|" + "---|" * HEADER.count(" |"))
+    for n in args.n:
+        for density in args.density:
+            modes = ["trivial", "ordered"] + ([] if args.no_unguarded else [None])
+            for mode in modes:
+                t = time.perf_counter()
+                row = figures(n, density, mode, args.episodes, args.seed, args.agent, args.action)
+                row["seconds"] = round(time.perf_counter() - t, 1)
+                if mode is not None and args.cost_episodes > 0:
+                    row.update(cost(n, density, mode, args.cost_episodes, args.seed, args.agent, args.action))
+                rows.append(row)
+                if not args.json:
+                    print(_line(row), flush=True)
+    if args.json:
+        json.dump({"agent": args.agent, "action": args.action, "rows": rows}, sys.stdout, indent=1)
+        print()
+    return 0
+
+
+HEADER = ("| N | density | over-approx. | episodes | distance/car [m] | lane changes | merges / on ramp | "
+          "overrides | collisions | at fault | guarded pairs | failsafe steps | decision/car/step median (p99) [ms] "
+          "| sim step [ms] |")
+
+
+def _line(r: dict) -> str:
+    cost_cell = (f"{r['decision_median_ms']:.2f} ({r['decision_p99_ms']:.2f})" if "decision_median_ms" in r else "-")
+    sim = f"{r['simulation_step_median_ms']:.2f}" if "simulation_step_median_ms" in r else "-"
+    return (f"| {r['n']} | {r['density']} | {r['overapprox']} | {r['episodes']} | {r['distance_per_car']:.1f} | "
+            f"{r['lane_changes']} | {r['merges']} / {r['on_ramp']} | {r['override_steps']} | {r['collisions']} | "
+            f"{r['at_fault']} | {r['guarded_pairs']} | {r['failsafe_steps']} | {cost_cell} | {sim} |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,270 @@
+"""Roads beyond one straight segment, as plain geometry: on-ramps, exits, lanes that begin and end.
+
+``guardian.sensing.read_road`` reads highway-env's road network into a ``RoadMap`` (or, for one straight
+multi-lane road, the simpler ``guardian.sensing.Road``); the decision objects and ``guardian.ego.RoadMapEgo``
+read only this module's plain values, never the simulator.
+
+The road the guardian can reason about is a **corridor** with **branches**:
+
+* the corridor: straight lanes along ``+x`` on ``n_lanes`` lateral **slots** (slot ``k``'s centre line at
+  ``y0 + k * lane_width``, slot 0 the leftmost, as highway-env numbers lanes), each slot present on some
+  x-intervals (``spans``): the main road's lanes everywhere, an exit lane on ``[400, 500]``, the parallel
+  part of an on-ramp on ``[230, 310]``. A span that ends where the road goes on in other slots is a
+  **dead end** (an on-ramp's end): a car in that slot has the end as an obstacle (a standing "car" of
+  length 0 at the end, ``ends``). A span that ends or begins at the road's own ends is open (the road goes
+  on: highway-env's cars drive on past the last node);
+* branches: lanes off the corridor (straight, sine or circular), each chained end to start with one
+  corridor lane of one slot: an on-ramp's approach leading into its slot, an exit's curve leaving its
+  slot. A branch belongs to its slot's ITHA lane: there is no lane beside it, and a car on it is in that
+  lane for the ITHA agents (7.3).
+
+ITHA lanes are slots: ITHA lane ``n_lanes - k`` (1 = rightmost) for slot ``k``, as on the straight road.
+The longitudinal coordinate of a car (its ``front`` in ``guardian.scene``) is ``x`` on the corridor and,
+on a branch, the branch's coordinate along its chain, continuous with ``x`` where it joins the corridor
+(on highway-env's on-ramps, whose lanes run along x, it is ``x`` itself; on an exit's curve it is the arc
+length from the exit, so it differs from ``x`` by less than 1 % over the curve's first 40 m at a 150 m
+radius). Fronts are comparable along a lane and across the corridor's slots.
+
+A body is **on the road** when every point of its outline (corners and side midpoints) lies in some
+lane's strip (``depth``); it **overlaps** slot ``k`` when its lateral extent (heading included, widened by
+a margin and swept by its velocity) meets a strip of slot ``k`` present where the body is (``body_slots``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Strip:
+    """A lane off the corridor as geometry: ``kind`` ``straight`` / ``sine`` (highway-env's ``StraightLane``
+    / ``SineLane``: the longitudinal coordinate along the chord ``start -> end``) or ``arc``
+    (``CircularLane``: ``start`` is the centre, ``direction`` +1 clockwise). ``s0`` is the longitudinal
+    coordinate of the strip's start along its chain; ``open_before`` / ``open_after``: the road goes on
+    past that end."""
+
+    kind: str
+    start: tuple
+    end: tuple
+    width: float
+    length: float
+    slot: int
+    s0: float
+    amplitude: float = 0.0
+    pulsation: float = 0.0
+    phase: float = 0.0
+    radius: float = 0.0
+    start_phase: float = 0.0
+    direction: int = 1
+    open_before: bool = False
+    open_after: bool = False
+
+    def _chord(self):
+        (x0, y0), (x1, y1) = self.start, self.end
+        n = math.hypot(x1 - x0, y1 - y0)
+        return x0, y0, (x1 - x0) / n, (y1 - y0) / n
+
+    def local(self, x, y):
+        """``(s, r)``: longitudinal and lateral coordinates of points (arrays) in the strip's own frame, as
+        highway-env's ``local_coordinates`` computes them (for a lane along ``+x``, ``r`` grows with y)."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        if self.kind == "arc":
+            cx, cy = self.start
+            dx, dy = x - cx, y - cy
+            phi = np.arctan2(dy, dx)
+            phi = self.start_phase + (phi - self.start_phase + np.pi) % (2 * np.pi) - np.pi
+            return (self.direction * (phi - self.start_phase) * self.radius,
+                    self.direction * (self.radius - np.hypot(dx, dy)))
+        x0, y0, ux, uy = self._chord()
+        s = (x - x0) * ux + (y - y0) * uy
+        r = -(x - x0) * uy + (y - y0) * ux
+        if self.kind == "sine":
+            r = r - self.amplitude * np.sin(self.pulsation * s + self.phase)
+        return s, r
+
+    def heading_at(self, s):
+        """The lane's heading at longitudinal coordinate ``s`` (array)."""
+        s = np.asarray(s, float)
+        if self.kind == "arc":
+            return self.direction * s / self.radius + self.start_phase + self.direction * np.pi / 2
+        x0, y0, ux, uy = self._chord()
+        theta = math.atan2(uy, ux)
+        if self.kind == "sine":
+            return theta + np.arctan(self.amplitude * self.pulsation * np.cos(self.pulsation * s + self.phase))
+        return np.full_like(s, theta)
+
+    def position(self, s: float, r: float = 0.0) -> tuple:
+        """The world point at ``(s, r)`` (for tests and drawings)."""
+        if self.kind == "arc":
+            phi = self.direction * s / self.radius + self.start_phase
+            cx, cy = self.start
+            rad = self.radius - r * self.direction
+            return cx + rad * math.cos(phi), cy + rad * math.sin(phi)
+        x0, y0, ux, uy = self._chord()
+        if self.kind == "sine":
+            r = r + self.amplitude * math.sin(self.pulsation * s + self.phase)
+        return x0 + s * ux - r * uy, y0 + s * uy + r * ux
+
+    def s_limits(self) -> tuple:
+        return (-np.inf if self.open_before else 0.0, np.inf if self.open_after else self.length)
+
+
+@dataclass(frozen=True)
+class RoadMap:
+    """The road as the guardian reasons about it (see the module docstring).
+
+    Attributes
+    ----------
+    lane_width : float
+    n_lanes : int
+        Slots (= ITHA lanes).
+    y0 : float
+        Slot 0's centre line.
+    spans : tuple
+        Per slot, the x-intervals ``((lo, hi), ...)`` where it is a corridor lane (``±inf``: open).
+    branches : tuple of Strip
+    lanes : tuple
+        ``((highway-env lane index, slot, branch number or -1), ...)``.
+    ends : tuple
+        ``((slot, s), ...)``: dead ends (a standing obstacle of length 0 at ``s``).
+    """
+
+    lane_width: float
+    n_lanes: int
+    y0: float
+    spans: tuple
+    branches: tuple
+    lanes: tuple
+    ends: tuple
+
+    # ---- lanes ----------------------------------------------------------------------------------------
+    def itha_lane(self, slot: int) -> int:
+        """ITHA lane number (1 = rightmost) of slot ``slot`` (0 = leftmost)."""
+        return self.n_lanes - slot
+
+    def slot_y(self, slot: int) -> float:
+        return self.y0 + slot * self.lane_width
+
+    def _lane_table(self) -> dict:
+        table = self.__dict__.get("_table")
+        if table is None:
+            table = {index: (slot, branch) for index, slot, branch in self.lanes}
+            object.__setattr__(self, "_table", table)
+        return table
+
+    def slot_of(self, index) -> int:
+        """The slot of highway-env lane ``index`` (``(from, to, id)``)."""
+        return self._lane_table()[tuple(index)][0]
+
+    def branch_of(self, index):
+        """The branch (``Strip``) highway-env lane ``index`` is, or None on the corridor."""
+        b = self._lane_table()[tuple(index)][1]
+        return None if b < 0 else self.branches[b]
+
+    def longitudinal(self, index, x: float, y: float) -> float:
+        """The longitudinal coordinate along the lane's chain of a point on highway-env lane ``index``."""
+        strip = self.branch_of(index)
+        if strip is None:
+            return float(x)
+        s, _ = strip.local(x, y)
+        return float(strip.s0 + s)
+
+    def slot_at(self, slot: int, x: float) -> bool:
+        """Is slot ``slot`` a corridor lane at ``x``?"""
+        return 0 <= slot < self.n_lanes and any(lo <= x <= hi for lo, hi in self.spans[slot])
+
+    def on_branch(self, x: float, y: float):
+        """The branch whose strip holds the point ``(x, y)`` while no corridor lane does, else None."""
+        k = int(round((y - self.y0) / self.lane_width))
+        if 0 <= k < self.n_lanes and abs(y - self.slot_y(k)) <= self.lane_width / 2 and self.slot_at(k, x):
+            return None
+        for strip in self.branches:
+            s, r = strip.local(x, y)
+            lo, hi = strip.s_limits()
+            if abs(float(r)) <= strip.width / 2 and lo <= float(s) <= hi:
+                return strip
+        return None
+
+    def lane_heading(self, x: float, y: float) -> float:
+        """The heading of the lane at ``(x, y)``: 0 on the corridor, the branch's where only a branch is."""
+        strip = self.on_branch(x, y)
+        if strip is None:
+            return 0.0
+        s, _ = strip.local(x, y)
+        return float(strip.heading_at(s))
+
+    def end_cars(self) -> tuple:
+        """Each dead end as a standing car of length 0 at the end, in its slot's ITHA lane: a car there must
+        stop before the end or leave the lane (self-safety (7.4) towards it)."""
+        from guardian.scene import Car
+
+        return tuple(Car(float(s), 0.0, frozenset({self.itha_lane(k)}), 0.0, f"the end of lane {self.itha_lane(k)}")
+                     for k, s in self.ends)
+
+    # ---- bodies ---------------------------------------------------------------------------------------
+    def depth(self, xs, ys) -> np.ndarray:
+        """For points (arrays), how far [m] each lies sideways outside every lane's strip present where it
+        is (0 on the road; ``inf`` where no lane is present at all)."""
+        xs, ys = np.asarray(xs, float), np.asarray(ys, float)
+        best = np.full(xs.shape, np.inf)
+        half = self.lane_width / 2
+        for k, spans in enumerate(self.spans):
+            present = np.zeros(xs.shape, bool)
+            for lo, hi in spans:
+                present |= (xs >= lo) & (xs <= hi)
+            lateral = np.maximum(np.abs(ys - self.slot_y(k)) - half, 0.0)
+            best = np.where(present, np.minimum(best, lateral), best)
+        for strip in self.branches:
+            s, r = strip.local(xs, ys)
+            lo, hi = strip.s_limits()
+            lateral = np.maximum(np.abs(r) - strip.width / 2, 0.0)
+            best = np.where((s >= lo) & (s <= hi), np.minimum(best, lateral), best)
+        return best
+
+    def body_slots(self, x, y, heading, length: float, width: float, margin: float = 0.0, dx=0.0, dy=0.0) -> frozenset:
+        """Slots whose strips the bodies at ``(x, y, heading)`` (arrays allowed: the union over all) overlap:
+        each body widened by ``margin`` and swept by ``(dx, dy)`` (its motion over a step); a slot counts
+        only where it is present along the body's extent."""
+        x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
+        dx, dy = np.broadcast_to(np.asarray(dx, float), x.shape), np.broadcast_to(np.asarray(dy, float), x.shape)
+        c, s = np.abs(np.cos(h)), np.abs(np.sin(h))
+        ry = length / 2 * s + width / 2 * c + margin
+        rx = length / 2 * c + width / 2 * s + margin
+        ylo, yhi = y - ry + np.minimum(dy, 0.0), y + ry + np.maximum(dy, 0.0)
+        xlo, xhi = x - rx + np.minimum(dx, 0.0), x + rx + np.maximum(dx, 0.0)
+        half = self.lane_width / 2
+        out = set()
+        for k, spans in enumerate(self.spans):
+            yk = self.slot_y(k)
+            beside = (ylo < yk + half) & (yhi > yk - half)
+            if not beside.any():
+                continue
+            along = np.zeros(x.shape, bool)
+            for lo, hi in spans:
+                along |= (xlo < hi) & (xhi > lo)
+            if (beside & along).any():
+                out.add(k)
+        sweep = np.hypot(dx, dy)
+        for strip in self.branches:
+            if strip.slot in out:
+                continue
+            sl, r = strip.local(x, y)
+            rel = h - strip.heading_at(sl)
+            rr = length / 2 * np.abs(np.sin(rel)) + width / 2 * np.abs(np.cos(rel)) + margin + sweep
+            rs = length / 2 * np.abs(np.cos(rel)) + width / 2 * np.abs(np.sin(rel)) + margin + sweep
+            lo, hi = strip.s_limits()
+            hit = (r - rr < strip.width / 2) & (r + rr > -strip.width / 2) & (sl + rs > lo) & (sl - rs < hi)
+            if hit.any():
+                out.add(strip.slot)
+        return frozenset(out)
+
+
+def outline(x, y, heading, length: float, width: float):
+    """Corners and side midpoints of bodies at ``(x, y, heading)`` (arrays): ``(xs, ys)`` of shape (n, 8)."""
+    x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
+    c, s = np.cos(h)[:, None], np.sin(h)[:, None]
+    a = np.array([1, 1, -1, -1, 1, -1, 0, 0], float) * length / 2
+    b = np.array([1, -1, 1, -1, 0, 0, 1, -1], float) * width / 2
+    return x[:, None] + a * c - b * s, y[:, None] + a * s + b * c
