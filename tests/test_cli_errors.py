@@ -124,8 +124,11 @@ def _alive(pid: int) -> bool:
 
 def _interrupt(argv, cache, wait_for, how, signum):
     env = {**os.environ, "GUARDIAN_CACHE_DIR": str(cache), "PYTHONUNBUFFERED": "1"}
+    # SIGINT's default action, as at a terminal: a suite started in the background (``cmd &``) ignores SIGINT,
+    # and Python then installs no Ctrl-C handler in the children it starts
     proc = subprocess.Popen([sys.executable, "-m", "guardian.cli", *argv], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         seen = []
         for line in proc.stderr:

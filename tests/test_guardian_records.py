@@ -59,7 +59,7 @@ def test_the_meta_action_reported_is_the_one_executed_over_the_policy_step(traff
     for action, info in _episodes(env, ("reckless", "random"), 2):
         g = info["guardian"]
         assert g["applied"] == names[g["applied_action"]] and g["proposed"] == names[int(action)]
-        ds = env._decisions  # the simulation steps of this policy step
+        ds = env.cars[0].decisions  # the simulation steps of this policy step
         lowered = any(d.applied[0] < d.proposed[0] - 1e-9 and not d.clipped_to_model for d in ds)
         refused = g["refused_lane_change"]
         expected = "SLOWER" if lowered else "IDLE" if refused else g["proposed"]

@@ -105,9 +105,10 @@ def test_env_config_takes_pairs_and_json_objects_and_names_what_the_env_cannot_t
                             "weights": [0.2989, 0.587, 0.114]}}
     code, err = _rollout(capsys, "--env-config", json.dumps(grey))
     assert code == 2 and "cannot be made with the config ['observation']" in err
-    multi = {"action": {"type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction"}}}
-    code, err = _rollout(capsys, "--env-config", json.dumps(multi))
-    assert code == 2 and "'action.type'" in err  # the guardian's refusal names the key
+    half = {"action": {"type": "MultiAgentAction",
+                       "action_config": {"type": "DiscreteMetaAction", "longitudinal": False}}}
+    code, err = _rollout(capsys, "--env-config", json.dumps(half))
+    assert code == 2 and "config 'action' must offer all five meta actions" in err  # the guardian's refusal
 
 
 def test_a_reckless_agent_on_a_one_lane_road_keeps_its_lane(capsys):
