@@ -79,6 +79,17 @@ class PointMassEgo:
         hi = y + p.dt * (v_ey + p.w_ey_bounds[1]) + self.half_width
         return frozenset(k + 1 for k in _lanes_overlapped(lo, hi, self.n_lanes, self.lane_width))
 
+    def lanes_with(self, y: float, v_ey: float, w_ey: float) -> frozenset:
+        """Lanes the body overlaps after one step with lateral input ``v_ey`` and disturbance ``w_ey``."""
+        centre = y + self.p.dt * (v_ey + w_ey)
+        return frozenset(k + 1 for k in _lanes_overlapped(centre - self.half_width, centre + self.half_width,
+                                                          self.n_lanes, self.lane_width))
+
+    def may_stay_in(self, y: float, v_ey: float, lanes: frozenset) -> bool:
+        """Can the body overlap exactly ``lanes`` after one step with ``v_ey``, for some ``w_ey``? (The
+        lanes overlapped move monotonically with ``w_ey``, so its box's corners decide.)"""
+        return any(self.lanes_with(y, v_ey, w) == lanes for w in self.p.w_ey_bounds)
+
     def lateral_partition(self, y: float) -> list:
         """``U_e``'s lateral range cut where the lanes the body may overlap next step change.
 

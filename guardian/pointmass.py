@@ -26,9 +26,10 @@ therefore keeps the ego in
   ahead in the left lane and ``C`` do not exclude each other.
 
 Inputs are chosen per lateral sub-interval of ``U_e`` (``PointMassEgo.lateral_partition``): inputs
-whose body stays in the right lane (lead ahead) must land in ``F_R``; inputs whose body may overlap
-the left lane must land in ``C``, and if that lane is new to the body the entry must be responsible
-for the applied input's next speed. Without traffic (the two cars of Section 6.5) the guardian is
+whose body stays in the right lane (lead ahead) must land in ``F_R``; inputs whose body surely
+overlaps the left lane must land in ``C``; inputs for which the noise ``w_ey`` decides must land in
+both (whichever way the noise goes, the next state is in ``K``). If the left lane is new to the body,
+the entry must be responsible for the applied input's next speed. Without traffic (the two cars of Section 6.5) the guardian is
 exactly ``IntentionAwareGuardian``.
 
 When the parts do not intersect, they are dropped in the order of ``guardian.decision.LEVELS``.
@@ -90,7 +91,7 @@ class _Part:
     self_safe: list          # next speeds: self-safety (7.4) towards traffic in every lane of now | next
     entry: list              # next speeds: the entry (7.5) of the new lane (all speeds when none)
     followers: list          # next speeds: the followers of lanes being entered stay in their sets
-    target: str              # "follow" (F_R) | "C"
+    target: str              # "follow" (F_R) | "C" | "both" (the noise decides whether the body leaves the lane)
     follow: list             # next speeds into F_R (target "follow")
     lead_as_car: list        # next speeds: the lead as an ordinary car (level "conflict")
 
@@ -241,8 +242,13 @@ class PointMassGuardian:
                 if lane not in follower_cache:
                     follower_cache[lane] = self.traffic.follower_speeds(scene.with_ego_lanes(lanes), lane)[0]
                 followers = intersect_intervals(followers, follower_cache[lane])
-            target = "follow" if nxt == {RIGHT_LANE} and h > 0 else "C"
-            follow = self._follow_speeds(v, h, vL) if target == "follow" else full
+            target = "C"
+            if h > 0 and nxt == {RIGHT_LANE}:
+                target = "follow"
+            elif h > 0 and RIGHT_LANE in nxt and kin.may_stay_in(y, (lo + hi) / 2, frozenset({RIGHT_LANE})):
+                target = "both"  # the noise decides whether the body is still in the right lane only: K needs
+                # F_R if it is, C if it is not, so the input must serve both
+            follow = self._follow_speeds(v, h, vL) if target != "C" else full
             lat_lo, lat_hi = kin.lateral_within(y, p.y_e_bounds[0], p.y_e_bounds[1])
             within = (max(lo, lat_lo), min(hi, lat_hi))  # (6.8)'s lateral bounds; C's polygons hold them too
             if within[0] > within[1]:
@@ -280,10 +286,10 @@ class PointMassGuardian:
                     speeds = intersect_intervals(speeds, part.followers)
                 if level == "conflict":
                     speeds = intersect_intervals(speeds, part.lead_as_car)
-                elif part.target == "follow":
+                elif part.target in ("follow", "both"):
                     speeds = intersect_intervals(speeds, part.follow)
                 boxes = [(a, part.lateral) for a in kin.accel_for_speeds(v, speeds)]
-                if level != "conflict" and part.target == "C":
+                if level != "conflict" and part.target in ("C", "both"):
                     c_boxes += boxes
                 else:
                     plain += boxes
@@ -345,12 +351,12 @@ class PointMassGuardian:
 
         named = [("self-safety towards the traffic ahead", part.self_safe), ("the entry's responsibility (7.5)", part.entry),
                  ("keeping the followers of the lanes being entered safe", part.followers)]
-        if part.target == "follow":
+        if part.target in ("follow", "both"):
             named.append(("F_R: self-safety behind the lead, whatever it brakes within its bounds", part.follow))
         for name, speeds in named:
             if refuses(speeds):
                 d.note(f"acceleration limited by {name}")
-        if part.target == "C" and not c_query.contains(np.asarray(u, float)):
+        if part.target in ("C", "both") and not c_query.contains(np.asarray(u, float)):
             d.note(f"outside S(x) of the active set {d.active_set} (Theorem 4)")
 
     @staticmethod

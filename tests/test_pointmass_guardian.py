@@ -199,3 +199,29 @@ def test_without_traffic_the_decision_is_the_two_car_guardian(library):
 def test_traffic_with_the_dissertations_speed_floor_is_refused(library):
     with pytest.raises(ValueError, match="wait behind the lead"):
         PointMassGuardian(library, 2, HALF, traffic=True, config=GuardianConfig())
+
+
+def test_on_the_lane_line_the_noise_cannot_take_the_ego_out_of_k(traffic_library):
+    """Found by the campaign (seek agent, 12 fast cars): the ego just right of the lane line, closing on
+    the lead at full throttle with a lateral input whose noise decides whether the body touches the left
+    lane. Such an input must keep F_R (the body may stay right) and C (it may not): drawn states near the
+    line, full throttle and random laterals, the lead and the noise at their worst or at random, every
+    successor lies in K again."""
+    lib, rng = traffic_library, np.random.default_rng(7)
+    p = lib.params
+    g = _guard(lib, n_lanes=2)
+    drawn = 0
+    while drawn < 200:
+        x = np.array([rng.uniform(15, 33), rng.uniform(0.3, 0.46), rng.uniform(10, 40), rng.uniform(10, 30)])
+        if not g.inside(x):
+            continue
+        drawn += 1
+        g.reset()
+        for _ in range(15):
+            proposal = [3.0, float(rng.choice([rng.uniform(*p.v_ey_bounds), -1.66, 0.0]))]
+            applied, d = g.step(x, _scene(x, [], n_lanes=2), proposal)
+            if d.level == "failsafe":
+                break
+            x = _step(lib, "aggressive", x, applied, rng, str(rng.choice(["random", "adversarial"])))
+            assert g.inside(x), f"left K at {x} after {applied} ({d.lead_target})"
+

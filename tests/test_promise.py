@@ -40,6 +40,17 @@ def test_three_lanes_twelve_cars_six_from_behind(traffic_library):
     assert _kept(r) and r["safety_violations"] == 0
 
 
+
+def test_a_seeking_agent_on_the_lane_line_stays_in_the_safe_set(traffic_library):
+    """Was (found by `guardian falsify`): the seek agent, 12 fast cars from behind, 3 lanes; the guardian kept
+    full throttle by steering along the lane line, where the noise decides whether the body touches the
+    left lane, and the ego left the safe set (6.8) behind the lead at step 116."""
+    r = highway_rollouts(OVERTAKE_ENV, "seek", 1, 200001, library=traffic_library, intention="aggressive",
+                         action="continuous", traffic=12,
+                         env_config={"lanes_count": 3, "observation": {"type": "OvertakeState"},
+                                     "traffic_from_behind": 6, "traffic_speed_range": [30.0, 38.0]})
+    assert _kept(r) and r["safety_violations"] == 0 and r["steps"] == 300
+
 def test_among_traffic_the_ego_may_wait_behind_the_lead():
     """Was: with the dissertation's v_ex >= 16 the ego had to overtake into traffic; now the scenario's
     default parameters let it stop, and the guardian refuses the old floor with traffic."""
