@@ -73,7 +73,9 @@ def same_set(P: Polyhedron, A, b, directions) -> bool:
 
 
 KINDS = ["bounded", "unbounded", "degenerate", "flat", "empty"]
-POLYTOPES = [(n, kind, seed) for n in range(2, 7) for kind in KINDS for seed in range(4)]
+# 6-D degenerate polytopes take 20-40 s each (the peer's vertex enumeration): two seeds of them, four of the rest
+POLYTOPES = [(n, kind, seed) for n in range(2, 7) for kind in KINDS
+             for seed in range(2 if (n, kind) == (6, "degenerate") else 4)]
 
 
 @pytest.mark.parametrize("n,kind,seed", POLYTOPES)
