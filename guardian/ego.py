@@ -72,18 +72,16 @@ class PointMassEgo:
         """``y_e`` of ITHA ``lane``'s centre."""
         return (lane - 1) * self.lane_width
 
-    def next_lanes(self, y: float, v_ey: float) -> frozenset:
-        """Lanes the body may overlap after one step with lateral input ``v_ey`` (any ``w_ey``)."""
-        p = self.p
-        lo = y + p.dt * (v_ey + p.w_ey_bounds[0]) - self.half_width
-        hi = y + p.dt * (v_ey + p.w_ey_bounds[1]) + self.half_width
-        return frozenset(k + 1 for k in _lanes_overlapped(lo, hi, self.n_lanes, self.lane_width))
-
     def lanes_with(self, y: float, v_ey: float, w_ey: float) -> frozenset:
         """Lanes the body overlaps after one step with lateral input ``v_ey`` and disturbance ``w_ey``."""
         centre = y + self.p.dt * (v_ey + w_ey)
         return frozenset(k + 1 for k in _lanes_overlapped(centre - self.half_width, centre + self.half_width,
                                                           self.n_lanes, self.lane_width))
+
+    def next_lanes(self, y: float, v_ey: float) -> frozenset:
+        """Lanes the body may overlap after one step with lateral input ``v_ey`` (any ``w_ey``): the body
+        moves less than its width across the noise's box, so its two corners sweep every lane between."""
+        return frozenset().union(*(self.lanes_with(y, v_ey, w) for w in self.p.w_ey_bounds))
 
     def may_stay_in(self, y: float, v_ey: float, lanes: frozenset) -> bool:
         """Can the body overlap exactly ``lanes`` after one step with ``v_ey``, for some ``w_ey``? (The

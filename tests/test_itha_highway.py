@@ -50,15 +50,20 @@ def _violations(S, prm, p, v, lane, trig, u_ego, triggers):
     return bad
 
 
+
+def _traffic_in_set(S, rng, trials: int):
+    """Of ``trials`` random traffic scenes (speeds in [0, 20] m/s), those whose every local state is in S."""
+    for _ in range(trials):
+        p, v, lane, _ = initial_traffic(SMALL, S, rng)
+        v = [float(rng.uniform(0, 20)) for _ in v]
+        if S.contains(local_states(SMALL, p, v, lane)).all():
+            yield p, v, lane
+
 @pytest.mark.parametrize("overapprox", ["trivial", "ordered"])
 def test_allowed_lane_changes_are_responsible_by_brute_force(S, overapprox):
     rng = np.random.default_rng(7)
     checked = 0
-    for trial in range(60):
-        p, v, lane, _ = initial_traffic(SMALL, S, rng)
-        v = [float(rng.uniform(0, 20)) for _ in v]
-        if not S.contains(local_states(SMALL, p, v, lane)).all():
-            continue
+    for p, v, lane in _traffic_in_set(S, rng, 60):
         order = example8_order(p, lane)
         ahead = set(order[:order.index(0)])
         sup = EgoSupervisor(SMALL, S, overapprox)
@@ -111,11 +116,7 @@ def test_silent_cars_are_over_approximated_as_trivial_does_by_brute_force(S):
     in the order: a mover answers for itself). Every allowed lane change survives every joint trigger."""
     rng = np.random.default_rng(17)
     checked = 0
-    for trial in range(200):
-        p, v, lane, _ = initial_traffic(SMALL, S, rng)
-        v = [float(rng.uniform(0, 20)) for _ in v]
-        if not S.contains(local_states(SMALL, p, v, lane)).all():
-            continue
+    for p, v, lane in _traffic_in_set(S, rng, 200):
         silent = {k for k in range(1, len(p)) if rng.uniform() < 0.5}
         order = example8_order(p, lane)
         ahead = {k for k in order[:order.index(0)] if k not in silent}
