@@ -61,7 +61,7 @@ class BicycleGuardian:
         c = config
         cf = CarFollowingParams(dt=kin.dt, v_max=c.v_max, h_min=c.h_min, u_min=-c.traffic_accel,
                                 u_max=c.traffic_accel, d_min=-c.traffic_accel, d_max=c.traffic_accel)
-        self.traffic = TrafficSupervisor(cf, None, c.overapprox)
+        self.traffic = TrafficSupervisor(cf, None, c.overapprox, c.wreck_margin)
         self.kin, self.config, self.meta = kin, config, meta
         self.reset()
 
@@ -223,7 +223,7 @@ class BicycleGuardian:
         kin = self.kin
         itha = {self.itha_lane(i) for i in occupied}
         ego_scene = scene.with_ego_lanes(itha)
-        self._limits = [(f"self-safety towards {car.name} ahead in lane {lane}", sp)
+        self._limits = [(f"self-safety towards {car.name} ahead in lane {lane}" + self._risk_note(ego_scene, car), sp)
                         for lane, car, sp in self.traffic.leader_speeds(ego_scene)]
         speeds, why = self.traffic.self_safe_speeds(ego_scene)
         d.note(why)
@@ -242,6 +242,10 @@ class BicycleGuardian:
                 d.note(why)
                 d.note("responsibility for a follower not kept (it was responsible when the entry began)")
         return kin.accel_for_speeds(ego.speed, speeds)
+
+    def _risk_note(self, scene: Scene, car) -> str:
+        risk = self.traffic.at_risk(scene, car)
+        return f" (at risk of a crash, kept as if it may stop at once: {risk})" if risk else ""
 
     def _explain(self, ego: EgoState, a_prop: float, a: float, d: Decision) -> None:
         """Say which part limited the acceleration; a clip at the speed bound alone is a modelling clip."""

@@ -23,6 +23,10 @@ class GuardianConfig:
     traffic_accel : float
         [m/s^2] ``|a|`` of the traffic (``IDMVehicle.ACC_MAX``): their braking and acceleration bound,
         and highway-env's ego's.
+    wreck_margin : float
+        [m] how far an impact may push a car back beyond where it stands still: the guardian keeps
+        this much more room behind a car at risk of a crash (``guardian.traffic``; docs/guardian.md
+        "Wrecks" has the measurement behind the default).
     overapprox : str
         ``trivial`` (highway-env traffic announces no lane change) or ``ordered``.
     use_intention : bool
@@ -43,6 +47,7 @@ class GuardianConfig:
     h_min: float = 2.0
     v_max: float = 40.0
     traffic_accel: float = 6.0
+    wreck_margin: float = 1.0
     overapprox: str = "trivial"
     use_intention: bool = True
     horizon: int = 10
@@ -59,6 +64,8 @@ class GuardianConfig:
         for name in ("h_min", "v_max", "traffic_accel"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"GuardianConfig.{name} must be positive, got {getattr(self, name)!r}")
+        if not (self.wreck_margin >= 0 and self.wreck_margin < float("inf")):
+            raise ConfigError(f"GuardianConfig.wreck_margin must be finite and >= 0, got {self.wreck_margin!r}")
         if not self.override_penalty >= 0:
             raise ConfigError(f"GuardianConfig.override_penalty must be >= 0, got {self.override_penalty!r}")
         if self.horizon < 1 or self.start_attempts < 1:

@@ -396,4 +396,4 @@ def overtake_traffic_supervisor(p: OvertakeParams, c) -> TrafficSupervisor:
     others = CarFollowingParams(dt=p.dt, v_max=c.v_max, h_min=c.h_min, u_min=-c.traffic_accel,
                                 u_max=c.traffic_accel, d_min=min(-c.traffic_accel, ego_hardest),
                                 d_max=c.traffic_accel)
-    return TrafficSupervisor(ego, others, c.overapprox)
+    return TrafficSupervisor(ego, others, c.overapprox, c.wreck_margin)

@@ -200,7 +200,8 @@ class RoadMap:
         stop before the end or leave the lane (self-safety (7.4) towards it)."""
         from guardian.scene import Car
 
-        return tuple(Car(float(s), 0.0, frozenset({self.itha_lane(k)}), 0.0, f"the end of lane {self.itha_lane(k)}")
+        return tuple(Car(float(s), 0.0, frozenset({self.itha_lane(k)}), 0.0, f"the end of lane {self.itha_lane(k)}",
+                         fixed=True)
                      for k, s in self.ends)
 
     # ---- bodies ---------------------------------------------------------------------------------------

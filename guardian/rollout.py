@@ -501,7 +501,8 @@ class _SelfSafetyCheck:
         self.guarded = frozenset(id(v) for v in guarded_cars(base)) if multi else frozenset()
         self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
                                                             u_min=-c.traffic_accel, u_max=c.traffic_accel,
-                                                            d_min=-c.traffic_accel, d_max=c.traffic_accel))
+                                                            d_min=-c.traffic_accel, d_max=c.traffic_accel),
+                                         wreck_margin=c.wreck_margin)
 
     def inside(self, base) -> bool:
         from guardian.judge import body_lanes

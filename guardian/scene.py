@@ -10,6 +10,7 @@ simulator by ``guardian.sensing`` and by hand in the tests: no simulator in here
 """
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 
 
@@ -21,6 +22,8 @@ class Car:
     length: float       # [m]
     name: str = ""
     announces: bool = False   # takes part in the ordered over-approximation (a guarded car)
+    crashed: bool = False     # has already collided (a wreck: it may stop faster than the model allows)
+    fixed: bool = False       # never moves and is never pushed (an obstacle, a lane's end)
 
 
 @dataclass(frozen=True)
@@ -34,7 +37,8 @@ class Scene:
     def with_ego_lanes(self, lanes) -> "Scene":
         """The same road with the ego occupying ``lanes`` (e.g. where it may be after a step)."""
         e = self.ego
-        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name, e.announces), self.others, self.n_lanes)
+        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name, e.announces, e.crashed, e.fixed), self.others,
+                     self.n_lanes)
 
     def leader(self, lane: int):
         """The nearest car in ``lane`` whose front is at or ahead of the ego's (None if there is none)."""
@@ -59,3 +63,14 @@ class Scene:
                     behind = c
             cache[lane] = (ahead, behind)
         return cache[lane]
+
+    def ahead_of(self, car: Car, lane: int):
+        """The nearest other car in ``lane`` whose front is strictly ahead of ``car``'s (None if none):
+        whom ``car`` follows there (the ego is never ahead of a car that matters to it)."""
+        order = self.__dict__.setdefault("_lane_orders", {})
+        if lane not in order:
+            cars = sorted((c for c in self.others if lane in c.lanes), key=lambda c: c.front)
+            order[lane] = ([c.front for c in cars], cars)
+        fronts, cars = order[lane]
+        k = bisect.bisect_right(fronts, car.front)
+        return cars[k] if k < len(cars) else None

@@ -233,13 +233,14 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
         if not guarded:
             target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
             others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed),
-                              _itha_lanes(road.n_lanes, lane, target), veh.LENGTH, f"car {k}"))
+                              _itha_lanes(road.n_lanes, lane, target), veh.LENGTH, f"car {k}",
+                              crashed=bool(veh.crashed)))
             continue
         target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
         lanes = _itha_lanes(road.n_lanes, lane, target) | frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road))
         lanes = lanes | announced.get(id(veh), frozenset())
         others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, veh.LENGTH, f"car {k}",
-                          id(veh) in guarded))
+                          id(veh) in guarded, bool(veh.crashed)))
     me = Car(float(ego.position[0]) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego",
              id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
@@ -269,7 +270,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
             slots.add(road.slot_of(veh.target_lane_index))
         lanes = frozenset(road.itha_lane(j) for j in slots) | announced.get(id(veh), frozenset())
         others.append(Car(road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2, float(veh.speed), lanes,
-                          veh.LENGTH, f"car {k}", id(veh) in guarded))
+                          veh.LENGTH, f"car {k}", id(veh) in guarded, bool(veh.crashed)))
     for k, obj in enumerate(base.road.objects):
         if not (getattr(obj, "solid", True) and getattr(obj, "collidable", True)):
             continue
@@ -278,7 +279,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
         if slots:
             index = base.road.network.get_closest_lane_index(obj.position, obj.heading)
             others.append(Car(road.longitudinal(index, x, y) + obj.LENGTH / 2, 0.0,
-                              frozenset(road.itha_lane(j) for j in slots), obj.LENGTH, f"obstacle {k}"))
+                              frozenset(road.itha_lane(j) for j in slots), obj.LENGTH, f"obstacle {k}", fixed=True))
     others.extend(road.end_cars())
     x, y = float(ego.position[0]), float(ego.position[1])
     me = Car(road.longitudinal(ego.lane_index, x, y) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes),

@@ -7,7 +7,9 @@ speed*, so that each ego kinematics (``guardian.ego``) converts the answer to it
 own input exactly:
 
 * ``self_safe_speeds``: next speeds keeping the ego in the car-following RCIS with
-  respect to the nearest car ahead in every lane it occupies (7.4);
+  respect to the nearest car ahead in every lane it occupies (7.4); towards a car *at risk*
+  (``at_risk``: it has crashed, or it may crash into the car it follows) the ego keeps to where
+  it can stop behind that car standing still after this step, ``wreck_margin`` further back;
 * ``follower_speeds``: next speeds keeping the nearest car behind in a lane the ego
   is entering in its RCIS whatever that car does (the ego answers for it while the
   entry lasts, as a reset does in ITHA);
@@ -17,6 +19,16 @@ own input exactly:
 A car that is changing lanes occupies both lanes. Under the ordered ρ̂ the cars that announce (other
 guarded cars: each is where it is, or where it has announced it goes, and those after the ego in
 Example 8's order yield) are exact; every other car is over-approximated as the trivial ρ̂ does.
+
+Wrecks. The car-following set (7.3) assumes the car ahead brakes by at most ``d_min``; a car that
+runs into the car it follows stops faster (highway-env takes a crashed car's speed down by ``v`` m/s^2,
+HighwayOvertake's traffic stops at once) and is pushed back by the impact. The traffic model does not
+say the other cars stay out of each other, so the guardian flags the cars that might not
+(``at_risk``) and treats each as able to stop at once: a crashed car; a car outside the
+car-following set behind the car it follows in some lane; a car that cannot stop behind a car at
+risk (the same rule, one car further back). A car that follows safely a car that is not at risk
+is trusted to stay out of it: what remains (a car inside its set that brakes too late) is counted as
+the traffic model violation it is.
 """
 from __future__ import annotations
 
@@ -41,14 +53,17 @@ class TrafficSupervisor:
     """Self-safety and responsibility of the ego among traffic (Chapter 7) for one set of bounds."""
 
     def __init__(self, params: CarFollowingParams, others: CarFollowingParams | None = None,
-                 overapprox: str = "trivial"):
+                 overapprox: str = "trivial", wreck_margin: float = 0.0):
         """``params``: the ego's bounds (its braking ``u_min``, its leaders' ``d_min``); ``others``: the
-        traffic's (their braking and acceleration, their leaders' — possibly the ego's — braking)."""
+        traffic's (their braking and acceleration, their leaders' — possibly the ego's — braking);
+        ``wreck_margin`` [m]: how far an impact may push a car at risk back (``GuardianConfig``)."""
         self.params = params
         self.others = params if others is None else others
         self.S = MaximalSet(params)
         self.S_others = self.S if others is None else MaximalSet(self.others)
         self.overapprox = overapprox
+        self.wreck_margin = float(wreck_margin)
+        self._risk = (None, {})   # (the scene's cars, {id(car): why it is at risk}) for the last scene
 
     def _speed_range(self) -> list:
         return [(0.0, self.params.v_max)]
@@ -65,7 +80,9 @@ class TrafficSupervisor:
         for lane, car, speeds in self.leader_speeds(scene):
             allowed = intersect_intervals(allowed, speeds)
             if not allowed:
-                return [], f"too close to {car.name or 'the car'} ahead in lane {lane}"
+                risk = self.at_risk(scene, car)
+                return [], f"too close to {car.name or 'the car'} ahead in lane {lane}" + (
+                    f" (at risk of a crash: {risk})" if risk else "")
         return allowed, ""
 
     def leader_speeds(self, scene: Scene) -> list:
@@ -79,8 +96,45 @@ class TrafficSupervisor:
                 continue
             gap = car.front - car.length - ego.front
             h_next = gap + p.dt * (min(car.speed, p.v_max) - ego.speed)
-            out.append((lane, car, self.S.speed_intervals(h_next, float(p.worst_lead_speed(min(car.speed, p.v_max))))))
+            if self.at_risk(scene, car):  # it may stand still from its next position on, pushed back
+                out.append((lane, car, self.S.speed_intervals(h_next - self.wreck_margin, 0.0)))
+            else:
+                out.append((lane, car, self.S.speed_intervals(h_next, float(p.worst_lead_speed(min(car.speed, p.v_max))))))
         return out
+
+    def at_risk(self, scene: Scene, car: Car) -> str:
+        """Why ``car`` may stop faster than the traffic model allows ("" when it may not): it has
+        crashed, or in some lane it is outside the car-following set behind the car it follows, or it
+        cannot stop behind that car when that car is at risk (see the module docstring)."""
+        cars, memo = self._risk
+        if cars is not scene.others:
+            memo = {}
+            self._risk = (scene.others, memo)
+        if id(car) not in memo:
+            memo[id(car)] = self._why_at_risk(scene, car)
+        return memo[id(car)]
+
+    def _why_at_risk(self, scene: Scene, car: Car) -> str:
+        if car.fixed:
+            return ""
+        if car.crashed:
+            return f"{car.name or 'the car'} has crashed"
+        p, name = self.others, car.name or "the car"
+        if not 0 <= car.speed <= p.v_max:
+            return f"{name} drives at {car.speed:.2f} m/s, outside the traffic model's [0, {p.v_max:g}] m/s"
+        for lane in sorted(car.lanes):
+            lead = scene.ahead_of(car, lane)
+            if lead is None:
+                continue
+            gap = lead.front - lead.length - car.front
+            if self.at_risk(scene, lead):
+                h_next = gap + p.dt * (min(lead.speed, p.v_max) - car.speed) - self.wreck_margin
+                v_next = max(p.next_speed(car.speed, p.u_min), 0.0)
+                if not self.S_others.contains([[v_next, h_next, 0.0]])[0]:
+                    return f"{name} cannot stop behind {lead.name or 'the car'} in lane {lane}, which is at risk"
+            elif not self.S_others.contains([[car.speed, gap, max(min(lead.speed, p.v_max), 0.0)]])[0]:
+                return f"{name} is outside its car-following set behind {lead.name or 'the car'} in lane {lane}"
+        return ""
 
     def follower_speeds(self, scene: Scene, lane: int, ego_progress_min: float | None = None) -> tuple[list, str]:
         """Next ego speeds keeping the nearest car behind in ``lane`` in its RCIS, whatever it does.

@@ -110,3 +110,71 @@ def test_random_steering_never_enters_an_occupied_lane_or_leaves_the_road(seed):
         ego = _bicycle(kin, ego, applied[0], applied[1])
         assert kin.lanes_at(ego.y, ego.heading) == {1}
         assert kin.off_road_depth(ego.y, ego.heading) == 0.0
+
+
+def _stops_behind_a_standing_wreck(g: BicycleGuardian, gap: float, v: float, v_lead: float, a: float) -> bool:
+    """After ``a`` for one step and the hardest braking after it, does the ego stay ``h_min`` behind a car
+    that stands still from its next position on, pushed back by ``wreck_margin``?"""
+    dt, c = g.kin.dt, g.config
+    wreck = gap + dt * v_lead - c.wreck_margin
+    ego, speed = dt * v, v + dt * a
+    while speed > 0:
+        ego += dt * speed
+        speed = max(speed - dt * c.traffic_accel, 0.0)
+    return wreck - ego >= c.h_min - 1e-6
+
+
+def _platoon(ego: EgoState, gap: float, v_lead: float, gap2: float, v_lead2: float, crashed=False) -> Scene:
+    lead_front = ego.front + gap + 5.0
+    others = (Car(lead_front, v_lead, frozenset({N - 1}), 5.0, "car 1"),
+              Car(lead_front + gap2 + 5.0, v_lead2, frozenset({N - 1}), 5.0, "car 2", crashed=crashed))
+    return Scene(Car(ego.front, ego.speed, frozenset(), 5.0, "ego"), others, N)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_behind_a_car_at_risk_of_a_crash_the_ego_can_stop_if_it_stops_at_once(seed):
+    """Falsifier: platoons where the car ahead tailgates another (or follows a wreck). Every applied input
+    lets the ego stop behind that car standing still from its next position on; and the rule matters:
+    the same input is not always safe with the car ahead's leader removed from the scene."""
+    rng = np.random.default_rng(seed)
+    g = _guard(dt=1 / 15)
+    checked = stricter = 0
+    for _ in range(400):
+        v, v_lead = rng.uniform(5, 30), rng.uniform(5, 30)
+        ego = EgoState(100.0, 4.0, 0.0, v, 1, 1)
+        gap, gap2 = rng.uniform(2, 80), rng.uniform(0, 1.9)  # closer than h_min: outside its set
+        scene = _platoon(ego, gap, v_lead, gap2, v_lead - rng.uniform(0, 5), crashed=rng.random() < 0.3)
+        assert g.traffic.at_risk(scene, scene.others[0])
+        applied, d = g.step(ego, scene, [6.0, 0.0])
+        if d.level == "failsafe":
+            continue
+        checked += 1
+        assert _stops_behind_a_standing_wreck(g, gap, v, v_lead, applied[0]), (v, v_lead, gap, applied)
+        alone = Scene(scene.ego, scene.others[:1], N)
+        assert not g.traffic.at_risk(alone, alone.others[0]) or v_lead > g.config.v_max
+        free, _ = g.step(ego, alone, [6.0, 0.0])
+        stricter += free[0] > applied[0] + 1e-9 and not _stops_behind_a_standing_wreck(g, gap, v, v_lead, free[0])
+    assert checked > 100 and stricter >= 3
+
+
+def test_who_is_at_risk():
+    """Crashed cars, cars outside their car-following set, and cars that cannot stop behind a car at risk
+    are at risk; a car following safely a car that is not, a standing obstacle and a lane's end are not."""
+    g = _guard(dt=1 / 15)
+    ego = EgoState(100.0, 4.0, 0.0, 20.0, 1, 1)
+    lane = frozenset({N - 1})
+    far = Scene(Car(105.0, 20.0, frozenset(), 5.0, "ego"),
+                (Car(160.0, 20.0, lane, 5.0, "a"), Car(260.0, 20.0, lane, 5.0, "b")), N)
+    assert not g.traffic.at_risk(far, far.others[0])
+    assert g.traffic.at_risk(_platoon(ego, 30.0, 20.0, 80.0, 20.0, crashed=True), _platoon(ego, 30.0, 20.0, 80.0, 20.0,
+                                                                                         crashed=True).others[1])
+    tail = _platoon(ego, 30.0, 25.0, 1.0, 20.0)
+    assert "outside its car-following set" in g.traffic.at_risk(tail, tail.others[0])
+    # a chain: c follows a at a distance safe under the model, but a tailgates b: c cannot stop behind a
+    chain = Scene(far.ego, (Car(150.0, 25.0, lane, 5.0, "c"), Car(170.0, 25.0, lane, 5.0, "a"),
+                            Car(176.0, 25.0, lane, 5.0, "b")), N)
+    assert g.traffic.S_others.contains([[25.0, 15.0, 25.0]])[0]   # c is inside its set behind a
+    assert "cannot stop behind a" in g.traffic.at_risk(chain, chain.others[0])
+    fixed = Scene(far.ego, (Car(150.0, 0.0, lane, 2.0, "obstacle", fixed=True), Car(150.5, 0.0, lane, 0.0, "end",
+                                                                                    fixed=True)), N)
+    assert not g.traffic.at_risk(fixed, fixed.others[0])

@@ -155,7 +155,9 @@ def test_configure_after_wrapping_takes_effect_at_reset():
 
 
 def test_a_start_inside_is_reported_and_unsafe_starts_can_be_drawn_again():
-    dense = {"vehicles_density": 2.5, "lanes_count": 1, "policy_frequency": 1}
+    """On three lanes at density 2.5 about one start in three lies inside (on one lane none does: every
+    platoon has a tailgater ahead, and the cars behind it are at risk of a pile-up)."""
+    dense = {"vehicles_density": 2.5, "policy_frequency": 1}
     env = Guardian(gym.make("highway-fast-v0", config=dense))
     starts = [env.reset(seed=s)[1]["guardian"]["start_inside"] for s in range(15)]
     assert not all(starts)

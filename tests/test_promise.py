@@ -115,3 +115,13 @@ def test_exits_from_the_safe_set_are_counted_with_the_guardian_too(traffic_libra
     monkeypatch.setattr(HighwayOvertakeEnv, "left_safe_set", sometimes)
     r = highway_rollouts(OVERTAKE_ENV, "idle", 1, 0, library=traffic_library, env_config={"duration": 2})
     assert r["safety_violations"] == 1
+
+
+def test_a_pile_up_ahead_is_not_run_into():
+    """Was (the campaign, seed 283008): two IDM cars ahead crash, the car between runs into the wreck and
+    stops faster than the traffic model allows; the ego, on the self-safety boundary behind it, touched
+    it (at its fault). Those cars tailgate from the start: they are at risk of a crash, and the ego keeps
+    room to stop behind a car that may stop at once."""
+    r = highway_rollouts("highway-v0", "trap", 1, 283008, action="meta",
+                         env_config={"duration": 15, "vehicles_density": 2.5})
+    assert r["collisions"] == 0 and r["ego_at_fault_collisions"] == 0
