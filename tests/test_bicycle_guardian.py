@@ -178,3 +178,11 @@ def test_who_is_at_risk():
     fixed = Scene(far.ego, (Car(150.0, 0.0, lane, 2.0, "obstacle", fixed=True), Car(150.5, 0.0, lane, 0.0, "end",
                                                                                     fixed=True)), N)
     assert not g.traffic.at_risk(fixed, fixed.others[0])
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
+def test_a_wreck_margin_that_is_not_a_finite_distance_is_refused(bad):
+    from guardian.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="wreck_margin"):
+        GuardianConfig(wreck_margin=bad)
