@@ -1,14 +1,18 @@
 """Who caused a collision: an independent judge from geometry alone.
 
 The judge knows nothing of the guardian: it watches the vehicles' bodies after every policy step and,
-when the ego crashes, applies three rules in order (the first that decides wins):
+when the ego crashes, applies three rules in order (the first that decides wins) to the bodies *at
+contact*: a vehicle whose crash began during a policy step is taken as it was at the end of the
+simulation step in which it began (the judge hooks the road's ``step``), not where the crash pushed or
+slid it by the end of the policy step (at 1 Hz, up to a second later). Roads without a ``step`` (and
+simulators whose crash is flagged after it) are judged on the bodies after the policy step.
 
 1. **Lane entry.** A car whose body began to overlap a lane of the other car within
    ``ENTRY_WINDOW`` seconds before the contact entered in front of (or beside) it: the entrant is at
    fault. If both entered such a lane in that window, the ego is at fault.
 2. **Side contact.** The bodies overlapped along the road before the step (they were side by side):
-   whoever moved sideways towards the other during the step (faster than ``SIDEWAYS`` m/s) is at
-   fault; both, the ego.
+   whoever moved sideways towards the other from the last observation to contact (faster than
+   ``SIDEWAYS`` m/s) is at fault; both, the ego.
 3. **Rear-end.** The car behind is at fault, unless the car ahead was reversing (negative speed):
    then the car ahead is.
 
@@ -150,6 +154,9 @@ class FaultJudge:
     def start(self, base, guarded=None) -> None:
         """A new episode; ``guarded``: the vehicles judged (default: the env's ego)."""
         self.t = 0
+        self.contact = {}          # id(vehicle) -> its body when its crash began (``_after_sim_step``)
+        self.since_seen = 0.0      # [s] simulated since the last observation
+        self._hook(base.road)
         self.guarded = list(guarded) if guarded is not None else [base.vehicle]
         self.entries = {}          # id(vehicle) -> {lane: time of the last entry}
         self.lanes = {}
@@ -158,6 +165,33 @@ class FaultJudge:
         self.ego_entries = []      # (time, lane) of every lane the ego's body began to overlap
         self.car_entries = [[] for _ in self.guarded]   # the same, per guarded car
         self._see(base, first=True)
+
+    def _hook(self, road) -> None:
+        """Have ``road.step`` report every simulation step to the judge of the current episode."""
+        road._fault_judge = self
+        step = getattr(road, "step", None)
+        if step is None or getattr(step, "reports_to_judge", False):
+            return
+
+        def step_and_report(dt, *args, **kwargs):
+            out = step(dt, *args, **kwargs)
+            road._fault_judge._after_sim_step(road, dt)
+            return out
+
+        step_and_report.reports_to_judge = True
+        road.step = step_and_report
+
+    def _after_sim_step(self, road, dt: float) -> None:
+        self.since_seen += dt
+        for v in road.vehicles:
+            if v.crashed and id(v) not in self.crashed and id(v) not in self.contact:
+                self.contact[id(v)] = {"lanes": self.body_lanes_of(v), "speed": float(v.speed),
+                                       "position": (float(v.position[0]), float(v.position[1])),
+                                       "seconds": self.since_seen}
+
+    def _at_contact(self, v) -> dict | None:
+        """``v``'s body when its crash began, if that was in the step being observed."""
+        return self.contact.get(id(v)) if id(v) not in self.crashed else None
 
     def body_lanes_of(self, vehicle) -> frozenset:
         """The lanes (straight road) or lines (other roads) the vehicle's body overlaps."""
@@ -170,7 +204,8 @@ class FaultJudge:
         cars = {id(v): i for i, v in enumerate(self.guarded)}
         for v in base.road.vehicles:
             k = id(v)
-            lanes = self.body_lanes_of(v)
+            contact = self._at_contact(v)
+            lanes = contact["lanes"] if contact else self.body_lanes_of(v)
             if not first:
                 for lane in lanes - self.lanes.get(k, lanes):
                     self.entries.setdefault(k, {})[lane] = self.t
@@ -179,7 +214,7 @@ class FaultJudge:
                     if k in cars:
                         self.car_entries[cars[k]].append((self.t, lane))
             self.lanes[k] = lanes
-            self.pos[k] = (float(v.position[0]), float(v.position[1]))
+            self.pos[k] = contact["position"] if contact else (float(v.position[0]), float(v.position[1]))
 
     def observe(self, base) -> Crash | None:
         """Call after every step; the ego's crash if it began in this step."""
@@ -191,7 +226,10 @@ class FaultJudge:
         self.t += 1
         self._see(base)
         newly = [v for v in base.road.vehicles if v.crashed and id(v) not in self.crashed]
+        span = {id(v): self._span(v) for v in newly}
+        speed = {id(v): self._at_contact(v)["speed"] if self._at_contact(v) else float(v.speed) for v in newly}
         self.crashed |= {id(v) for v in newly}
+        self.since_seen = 0.0
         judged, out = set(), []
         for i, car in enumerate(self.guarded):
             if not any(v is car for v in newly) or id(car) in judged:
@@ -200,8 +238,8 @@ class FaultJudge:
             if not partners:
                 out.append(Crash(self.t, "ego", "alone", car=i))
                 continue
-            other = min(partners, key=lambda o: math.dist(o.position, car.position))
-            crash = self._fault(car, other, base)
+            other = min(partners, key=lambda o: math.dist(self.pos[id(o)], self.pos[id(car)]))
+            crash = self._fault(car, other, base, span[id(car)], speed)
             crash.car = i
             j = next((j for j, g in enumerate(self.guarded) if g is other), None)
             if j is not None:
@@ -216,29 +254,34 @@ class FaultJudge:
         lanes_b = self.lanes[id(b)]
         return any(lane in lanes_b and self.t - t <= window for lane, t in self.entries.get(id(a), {}).items())
 
-    def _fault(self, ego, other, base) -> Crash:
+    def _span(self, v) -> float:
+        """[s] from the last observation to ``v``'s contact (the policy period when it is not known)."""
+        contact = self._at_contact(v)
+        return contact["seconds"] if contact and contact["seconds"] > 0 else self.dt
+
+    def _fault(self, ego, other, base, span: float, speed: dict) -> Crash:
         name = f"car {base.road.vehicles.index(other)}"
         ego_in, other_in = self._entered_lane_of(ego, other), self._entered_lane_of(other, ego)
         if ego_in or other_in:
             return Crash(self.t, "ego" if ego_in else "other", "entry", name,
                          {"ego_entered": ego_in, "other_entered": other_in})
         if self.lines is not None:
-            return self._fault_along_lanes(ego, other, name)
+            return self._fault_along_lanes(ego, other, name, span, speed)
         dx = float(other.position[0] - ego.position[0])
         (ex0, ey0), (ox0, oy0) = self.prev.get(id(ego), self.pos[id(ego)]), self.prev.get(id(other), self.pos[id(other)])
         if abs(ox0 - ex0) < (ego.LENGTH + other.LENGTH) / 2:  # side by side before the step
             towards = math.copysign(1.0, oy0 - ey0)
-            fast = SIDEWAYS * self.dt
+            fast = SIDEWAYS * span
             ego_moved = (self.pos[id(ego)][1] - ey0) * towards > fast
             other_moved = (self.pos[id(other)][1] - oy0) * -towards > fast
             if ego_moved or other_moved:
                 return Crash(self.t, "ego" if ego_moved else "other", "side", name,
                              {"ego_moved": ego_moved, "other_moved": other_moved})
         behind, ahead = (ego, other) if dx > 0 else (other, ego)
-        at_fault = ahead if ahead.speed < 0 else behind
+        at_fault = ahead if speed[id(ahead)] < 0 else behind
         return Crash(self.t, "ego" if at_fault is ego else "other", "rear_end", name, {"dx": dx})
 
-    def _fault_along_lanes(self, ego, other, name: str) -> Crash:
+    def _fault_along_lanes(self, ego, other, name: str, span: float, speed: dict) -> Crash:
         """The side and rear-end rules with "along" and "sideways" taken against the ego's lane heading."""
         h = self.lines.heading(ego)
         t, n = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
@@ -246,7 +289,7 @@ class FaultJudge:
         e1, o1 = np.array(self.pos[id(ego)]), np.array(self.pos[id(other)])
         if abs(float((o0 - e0) @ t)) < (ego.LENGTH + other.LENGTH) / 2:  # side by side before the step
             towards = math.copysign(1.0, float((o0 - e0) @ n))
-            fast = SIDEWAYS * self.dt
+            fast = SIDEWAYS * span
             ego_moved = float((e1 - e0) @ n) * towards > fast
             other_moved = float((o1 - o0) @ n) * -towards > fast
             if ego_moved or other_moved:
@@ -254,5 +297,5 @@ class FaultJudge:
                              {"ego_moved": ego_moved, "other_moved": other_moved})
         dx = float((o1 - e1) @ t)
         behind, ahead = (ego, other) if dx > 0 else (other, ego)
-        at_fault = ahead if ahead.speed < 0 else behind
+        at_fault = ahead if speed[id(ahead)] < 0 else behind
         return Crash(self.t, "ego" if at_fault is ego else "other", "rear_end", name, {"dx": dx})

@@ -257,3 +257,64 @@ def test_sideways_on_a_curve_is_measured_against_the_lane():
     assert abs(pe[1] - j.pos[id(ego)][1]) > 1.5
     crash = _crash(j, base, ego, other)
     assert (crash.fault, crash.rule) == ("other", "side")
+
+
+class _SteppedRoad:
+    """A road whose ``step`` plays one scripted frame per call: ``frames[i](cars)`` moves and crashes them."""
+
+    def __init__(self, cars, frames):
+        self.vehicles, self.frames = list(cars), list(frames)
+
+    def step(self, dt):
+        self.frames.pop(0)(self.vehicles)
+
+
+def _policy_step(base, frames_per_step, sim_dt):
+    for _ in range(frames_per_step):
+        base.road.step(sim_dt)
+
+
+def _cut_in_then_slide(cars):
+    ego, cutter = cars
+    return [lambda c: cutter.position.__setitem__(1, LANE - 1.2),                  # its body enters the ego's lane
+            lambda c: [setattr(v, "crashed", True) for v in c],                    # contact, the ego in its own lane
+            lambda c: ego.position.__setitem__(1, 1.4)]                            # the crash slides the ego across
+
+
+def test_a_crash_inside_a_policy_step_is_judged_on_the_bodies_at_contact():
+    """At 1 Hz a crash may begin a second before the policy step ends; what the bodies did after contact
+    (here the crash slides the ego across its lane line) is not a lane entry. Judged at the step's end,
+    both would have entered and the ego would be at fault."""
+    ego, cutter = Car(0.0, 0.0), Car(-1.0, LANE)
+    road = _SteppedRoad([ego, cutter], [])
+    base = SimpleNamespace(vehicle=ego, road=road)
+    j = FaultJudge(LANE, 3, dt=1.0)
+    j.start(base)
+    road.frames = _cut_in_then_slide(road.vehicles)
+    _policy_step(base, 3, 1 / 3)
+    assert 1 in body_lanes(ego, LANE, 3)  # at the step's end the ego overlaps the cutter's lane
+    crash = j.observe(base)
+    assert (crash.fault, crash.rule) == ("other", "entry"), crash
+    assert crash.detail == {"ego_entered": False, "other_entered": True}
+
+
+def test_without_a_road_step_the_bodies_after_the_step_are_judged():
+    ego, cutter = Car(0.0, 0.0), Car(-1.0, LANE)
+    base = _scene(ego, cutter)
+    j = FaultJudge(LANE, 3, dt=1.0)
+    j.start(base)
+    for frame in _cut_in_then_slide([ego, cutter]):
+        frame([ego, cutter])
+    crash = j.observe(base)
+    assert (crash.fault, crash.detail) == ("ego", {"ego_entered": True, "other_entered": True})  # counted against it
+
+
+def test_the_judge_of_the_current_episode_hears_the_road_once():
+    ego, other = Car(0.0, 0.0), Car(20.0, 0.0)
+    road = _SteppedRoad([ego, other], [lambda c: None] * 4)
+    base = SimpleNamespace(vehicle=ego, road=road)
+    first, second = FaultJudge(LANE, 3, dt=1.0), FaultJudge(LANE, 3, dt=1.0)
+    first.start(base)
+    second.start(base)  # a new episode on the same road object: the step is wrapped once, for the new judge
+    road.step(0.5)
+    assert (first.since_seen, second.since_seen) == (0.0, 0.5)

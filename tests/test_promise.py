@@ -125,3 +125,13 @@ def test_a_pile_up_ahead_is_not_run_into():
     r = highway_rollouts("highway-v0", "trap", 1, 283008, action="meta",
                          env_config={"duration": 15, "vehicles_density": 2.5})
     assert r["collisions"] == 0 and r["ego_at_fault_collisions"] == 0
+
+
+def test_a_car_cutting_into_the_egos_side_is_judged_at_contact():
+    """Was (the campaign, seed 20023, 1 Hz): an IDM car beside the ego cuts into its lane and hits it; the
+    crash then slides the ego over its lane line before the policy step ends. Judged at the step's end,
+    both had entered each other's lane and the ego was at fault; at contact only the IDM car had."""
+    r = highway_rollouts("highway-v0", "trap", 1, 20023, action="continuous",
+                         env_config={"duration": 15, "vehicles_density": 2.5})
+    assert r["starts_outside"] == 0 and r["collisions"] == 1
+    assert [(c["fault"], c["rule"]) for c in r["crashes"]] == [("other", "entry")]
