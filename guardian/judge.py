@@ -226,8 +226,10 @@ class FaultJudge:
         self.t += 1
         self._see(base)
         newly = [v for v in base.road.vehicles if v.crashed and id(v) not in self.crashed]
-        span = {id(v): self._span(v) for v in newly}
-        speed = {id(v): self._at_contact(v)["speed"] if self._at_contact(v) else float(v.speed) for v in newly}
+        contact = {id(v): self._at_contact(v) for v in newly}
+        # [s] from the last observation to each contact (the policy period when it is not known)
+        span = {k: c["seconds"] if c and c["seconds"] > 0 else self.dt for k, c in contact.items()}
+        speed = {id(v): contact[id(v)]["speed"] if contact[id(v)] else float(v.speed) for v in newly}
         self.crashed |= {id(v) for v in newly}
         self.since_seen = 0.0
         judged, out = set(), []
@@ -253,11 +255,6 @@ class FaultJudge:
         window = ENTRY_WINDOW / self.dt
         lanes_b = self.lanes[id(b)]
         return any(lane in lanes_b and self.t - t <= window for lane, t in self.entries.get(id(a), {}).items())
-
-    def _span(self, v) -> float:
-        """[s] from the last observation to ``v``'s contact (the policy period when it is not known)."""
-        contact = self._at_contact(v)
-        return contact["seconds"] if contact and contact["seconds"] > 0 else self.dt
 
     def _fault(self, ego, other, base, span: float, speed: dict) -> Crash:
         name = f"car {base.road.vehicles.index(other)}"

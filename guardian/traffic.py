@@ -49,6 +49,16 @@ class EntryVerdict:
     reason: str
 
 
+def _gap(follower: Car, lead: Car) -> float:
+    """Bumper-to-bumper headway of (7.3) from ``follower`` to ``lead`` (fronts along the lane)."""
+    return lead.front - lead.length - follower.front
+
+
+def _gap_after_step(p: CarFollowingParams, follower: Car, lead: Car) -> float:
+    """The headway after one step with both cars at their speeds now (the lead's clipped to ``v_max``)."""
+    return _gap(follower, lead) + p.dt * (min(lead.speed, p.v_max) - follower.speed)
+
+
 class TrafficSupervisor:
     """Self-safety and responsibility of the ego among traffic (Chapter 7) for one set of bounds."""
 
@@ -94,8 +104,7 @@ class TrafficSupervisor:
             car = self.leader(scene, lane)
             if car is None:
                 continue
-            gap = car.front - car.length - ego.front
-            h_next = gap + p.dt * (min(car.speed, p.v_max) - ego.speed)
+            h_next = _gap_after_step(p, ego, car)
             if self.at_risk(scene, car):  # it may stand still from its next position on, pushed back
                 out.append((lane, car, self.S.speed_intervals(h_next - self.wreck_margin, 0.0)))
             else:
@@ -117,22 +126,21 @@ class TrafficSupervisor:
     def _why_at_risk(self, scene: Scene, car: Car) -> str:
         if car.fixed:
             return ""
-        if car.crashed:
-            return f"{car.name or 'the car'} has crashed"
         p, name = self.others, car.name or "the car"
+        if car.crashed:
+            return f"{name} has crashed"
         if not 0 <= car.speed <= p.v_max:
             return f"{name} drives at {car.speed:.2f} m/s, outside the traffic model's [0, {p.v_max:g}] m/s"
         for lane in sorted(car.lanes):
             lead = scene.ahead_of(car, lane)
             if lead is None:
                 continue
-            gap = lead.front - lead.length - car.front
             if self.at_risk(scene, lead):
-                h_next = gap + p.dt * (min(lead.speed, p.v_max) - car.speed) - self.wreck_margin
+                h_next = _gap_after_step(p, car, lead) - self.wreck_margin
                 v_next = max(p.next_speed(car.speed, p.u_min), 0.0)
                 if not self.S_others.contains([[v_next, h_next, 0.0]])[0]:
                     return f"{name} cannot stop behind {lead.name or 'the car'} in lane {lane}, which is at risk"
-            elif not self.S_others.contains([[car.speed, gap, max(min(lead.speed, p.v_max), 0.0)]])[0]:
+            elif not self.S_others.contains([[car.speed, _gap(car, lead), max(min(lead.speed, p.v_max), 0.0)]])[0]:
                 return f"{name} is outside its car-following set behind {lead.name or 'the car'} in lane {lane}"
         return ""
 
