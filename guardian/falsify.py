@@ -211,7 +211,8 @@ class Campaign:
             if r.get(k):
                 self.failures.append({"kind": k, "count": r[k], "cell": cell.setting, "command": cell.command(seed)})
         if cell.env == OVERTAKE_ENV and r.get("safety_violations"):
-            self.failures.append({"kind": "safe-set exit", "cell": cell.setting, "command": cell.command(seed)})
+            kind = "safe-set exit after a start outside" if r.get("starts_outside") else "safe-set exit"
+            self.failures.append({"kind": kind, "cell": cell.setting, "command": cell.command(seed)})
 
     @staticmethod
     def _keys(cell: Cell) -> list:

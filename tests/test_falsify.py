@@ -104,3 +104,29 @@ def test_a_crash_between_two_guarded_cars_is_a_failure_whoever_the_judge_blames(
     camp = Campaign()
     camp.add(cell, 0, r)
     assert camp.failures == []
+
+
+def test_a_safe_set_exit_says_whether_the_episode_started_outside():
+    """An exit after a start inside breaks the promise; one after a start outside is listed apart."""
+    cell = next(c for c in matrix(only="overtake"))
+    r = {k: 0 for k in COUNTED}
+    r.update(crashes=[], safety_violations=1)
+    camp = Campaign()
+    camp.add(cell, 0, r)
+    r["starts_outside"] = 1
+    camp.add(cell, 1, r)
+    assert [f["kind"] for f in camp.failures] == ["safe-set exit", "safe-set exit after a start outside"]
+    assert camp.rows[("all",)]["safety_violations"] == 2
+
+
+def test_the_campaign_fails_on_an_exit_after_a_start_inside_not_on_one_after_a_start_outside():
+    from guardian.cli.falsify import promise_broken
+
+    clean = {"totals": {k: 0 for k in COUNTED}, "failures": []}
+    assert not promise_broken(clean)
+    outside = dict(clean, failures=[{"kind": "safe-set exit after a start outside"},
+                                    {"kind": "collision after a start outside"}])
+    assert not promise_broken(outside)
+    assert promise_broken(dict(clean, failures=[{"kind": "safe-set exit"}]))
+    for k in ("ego_at_fault_collisions", "unchecked_entries", "reversing_steps", "unsupervised_steps"):
+        assert promise_broken({"totals": dict(clean["totals"], **{k: 1}), "failures": []}), k

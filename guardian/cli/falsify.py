@@ -20,6 +20,15 @@ def table(rows: list, title: str) -> str:
     return "\n".join([fmt(header), *(fmt(line) for line in body)])
 
 
+def promise_broken(result: dict) -> bool:
+    """Whether a guarded campaign found a failure of the promise: a collision at a guarded car's fault
+    after a start inside, an unchecked entry, a reversing or unsupervised step, an exception, or a
+    HighwayOvertake exit from the safe set after a start inside."""
+    totals = result["totals"]
+    counts = ("ego_at_fault_collisions", "exceptions", "unchecked_entries", "reversing_steps", "unsupervised_steps")
+    return any(totals.get(k, 0) for k in counts) or any(f["kind"] == "safe-set exit" for f in result["failures"])
+
+
 def cmd_falsify(args) -> int:
     from guardian.falsify import matrix, run_campaign
 
@@ -48,10 +57,7 @@ def cmd_falsify(args) -> int:
     else:
         lines.append("no failures")
     emit(result, args.json, "\n".join(lines))
-    bad = result["totals"].get("ego_at_fault_collisions", 0) + result["totals"].get("exceptions", 0) + \
-        result["totals"].get("unchecked_entries", 0) + result["totals"].get("reversing_steps", 0) + \
-        result["totals"].get("unsupervised_steps", 0)
-    return 1 if bad and not args.no_guardian else 0
+    return 1 if promise_broken(result) and not args.no_guardian else 0
 
 
 def add_commands(sub) -> None:
