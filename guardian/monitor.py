@@ -14,6 +14,13 @@ transitions the model does not cover:
   road in ``[BicycleEgo.min_progress, dt speed]`` (what the guardian covers);
 * traffic (7.3): progress ``dt v``, acceleration in ``[d_min, d_max]``, speed in
   ``[0, v_max]``.
+* traffic that does not see the guarded car (``traffic_blind``, counted at the state, once per
+  simulation step): (7.3) has every car react to the car ahead in its lane, and the lane changes of
+  highway-env's MOBIL cars weigh the car behind in the lane they enter. highway-env's v0 roads
+  (``merge-v0``, ``exit-v0``; ``neighbour_vehicles_connected_lanes`` False) look for those cars on
+  the car's own lane segment only, so near a segment's end a car may not see the guarded car on the
+  next segment. A step counts when some traffic car's search, in its lane or a lane beside it, misses
+  the guarded car that highway-env's connected-lane search (merge-v1, exit-v1) finds.
 
 With several guarded cars each has its own monitor (``observe(..., ego=vehicle)``); only one of them
 counts the traffic (``watch_traffic``), so that sums over the cars count each car once.
@@ -38,7 +45,7 @@ class ModelMonitor:
 
     def reset(self) -> None:
         self._prev = None
-        self.totals = {"ego": 0, "lead": 0, "traffic": 0}
+        self.totals = {"ego": 0, "lead": 0, "traffic": 0, "traffic_blind": 0}
         self.worst = {"traffic_progress_shortfall_m": 0.0, "traffic_braking_excess": 0.0}
 
     def _snapshot(self, base, applied, ego=None):
@@ -61,8 +68,9 @@ class ModelMonitor:
         counts = {"ego": 0, "lead": 0, "traffic": 0}
         if self._prev is not None:
             counts = self._compare(self._prev, now)
-            for k, n in counts.items():
-                self.totals[k] += n
+        counts["traffic_blind"] = int(traffic_blind_to(base.road, base.vehicle if ego is None else ego))
+        for k, n in counts.items():
+            self.totals[k] += n
         self._prev = now
         return counts
 
@@ -115,3 +123,32 @@ class ModelMonitor:
         speed_ok = abs(v1 - v0 - self.dt * a) <= TOL
         progress_ok = self.ego_kin.min_progress(v0, heading) - TOL <= progress <= self.dt * v0 + TOL
         return speed_ok and progress_ok
+
+
+BLIND_RANGE = 100.0  # [m] traffic cars farther than this along x are not asked (a segment's end is nearer)
+
+
+def traffic_blind_to(road, car) -> bool:
+    """Whether some traffic car misses ``car`` ahead or behind it, in its lane or a lane beside it, where
+    highway-env's connected-lane search would find it (see the module docstring)."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    if getattr(road, "neighbour_vehicles_connected_lanes", True) or car.lane_index is None \
+            or sum(len(ends) for ends in road.network.graph.values()) < 2:
+        return False  # one segment per lane: both searches are the same
+    x = float(car.position[0])
+    for other in road.vehicles:
+        if other is car or not isinstance(other, IDMVehicle) or other.crashed \
+                or abs(float(other.position[0]) - x) > BLIND_RANGE or other.lane_index is None:
+            continue
+        for lane in [other.lane_index, *road.network.side_lanes(other.lane_index)]:
+            if lane[:2] == car.lane_index[:2] or car in road.neighbour_vehicles(other, lane):
+                continue  # on the car's own segment the v0 search finds it whenever the other would
+            road.neighbour_vehicles_connected_lanes = True
+            try:
+                seen = car in road.neighbour_vehicles(other, lane)
+            finally:
+                road.neighbour_vehicles_connected_lanes = False
+            if seen:
+                return True
+    return False

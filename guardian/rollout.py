@@ -29,7 +29,8 @@ class Observer:
     def close(self) -> None: ...
 
 
-def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None, algo: str | None = None) -> None:
+def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None, algo: str | None = None,
+                 first: int = 0) -> None:
     """The rollout loop: ``episodes`` seeded episodes of ``agent`` on ``env``.
 
     Parameters
@@ -46,9 +47,11 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
         Told of every episode and step; closed on every exit, an exception too.
     progress : callable, optional
         ``progress(done, total)`` after each episode.
+    first : int
+        Run episodes ``first .. first + episodes - 1`` of the rule: episode i of a longer run, alone.
     """
     try:
-        for ep in range(episodes):
+        for ep in range(first, first + episodes):
             obs, _ = env.reset(seed=seed + ep)
             act = make_agent(agent, env, np.random.default_rng([seed, ep]), algo=algo)
             for o in observers:
@@ -65,7 +68,7 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
             for o in observers:
                 o.end_episode(env, ep)
             if progress:
-                progress(ep + 1, episodes)
+                progress(ep + 1 - first, episodes)
     finally:
         env.close()
         for o in observers:
@@ -141,7 +144,7 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
                      disturbance: str = "random", traffic: int | None = None, use_intention: bool = True,
                      env_config: dict | None = None, guardian_config=None, safe_start: bool = False,
                      horizon: int = 10, progress=None, rerun_path=None, video_dir=None,
-                     policy_algo: str | None = None, controlled: int | None = None) -> dict:
+                     policy_algo: str | None = None, controlled: int | None = None, first_episode: int = 0) -> dict:
     """Seeded episodes of one agent on a highway-env environment, with or without the ``Guardian``.
 
     Parameters
@@ -150,8 +153,8 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         ``guardian/Overtake-v0``, ``guardian/HighwayOvertake-v0`` or a highway-env id (``highway-v0``, ...).
     agent : str
         A name of ``envs.agents.AGENTS``, or ``policy:PATH`` (a stable-baselines3 policy file).
-    episodes, seed : int
-        Seeded as ``run_episodes`` says.
+    episodes, seed, first_episode : int
+        Seeded as ``run_episodes`` says; ``first_episode`` skips to episode i of a longer run.
     action : str, optional
         ``continuous`` or ``meta`` (default: the env's own action type).
     guardian, use_intention : bool
@@ -218,14 +221,15 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         from guardian.rerun_log import GuardianRecorder
         recorder = GuardianRecorder(rerun_path)
     tally = HighwayTally(env, overtake, guardian, recorder, library, horizon)
-    run_episodes(env, agent, episodes, seed, [tally], progress, algo=policy_algo)
+    run_episodes(env, agent, episodes, seed, [tally], progress, algo=policy_algo, first=first_episode)
     return tally.result(episodes)
 
 
 COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
           "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
           "override_steps", "model_clip_steps", "refused_lane_changes", "clipped_sim_steps", "lane_changes",
-          "model_violation_steps", "traffic_model_violation_steps", "follower_dropped_steps", "conflict_steps",
+          "model_violation_steps", "traffic_model_violation_steps", "traffic_blind_steps", "follower_dropped_steps",
+          "conflict_steps",
           "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments")
 MULTI_COUNTS = ("guarded_pair_collisions", "merges", "on_ending_lane")
 CAR_COUNTS = ("collisions", "at_fault_collisions", "lane_changes", "override_steps", "refused_lane_changes",
@@ -290,6 +294,7 @@ class HighwayTally(Observer):
         self.road = read_road(base)
         self.on_map = isinstance(self.road, RoadMap)
         self.cars = guarded_cars(base)
+        self.last_blind = [None] * len(self.cars)
         self.multi = _multi(base)
         if self.multi and self.per_car is None:
             self.per_car = [dict({k: 0 for k in CAR_COUNTS}, distance=0.0) for _ in self.cars]
@@ -344,6 +349,8 @@ class HighwayTally(Observer):
             changed = int(self._slot(v) != self.lanes_before[i])
             totals["lane_changes"] += changed
             _count_step(totals, r)
+            if r and r["model_violations"].get("traffic_blind"):
+                self.last_blind[i] = self.t
             if self.multi:
                 self.per_car[i]["lane_changes"] += changed
                 if r:
@@ -393,6 +400,9 @@ class HighwayTally(Observer):
         row = {"episode": self.episode, "step": self.t, "fault": crash.fault, "rule": crash.rule,
                "partner": crash.partner, "start_inside": self.inside,
                "level": g.get("level"), "reasons": g.get("reasons", [])}
+        if self.guardian:
+            blind = self.last_blind[crash.car]
+            row["steps_since_traffic_blind"] = None if blind is None else self.t - blind
         if self.multi:
             row.update({"car": crash.car, "partner_car": crash.partner_car})
             totals["guarded_pair_collisions"] = totals.get("guarded_pair_collisions", 0) + int(
@@ -447,6 +457,10 @@ class HighwayTally(Observer):
           lane neither among the lanes the guardian held the car in nor among the entries it checked and
           found responsible (on roads beyond one straight segment: slots of ``guardian.roads``, the body
           unwidened).
+        * ``traffic_blind_steps``: policy steps in which some traffic car did not see a guarded car its
+          model has it react to (``guardian.monitor.traffic_blind_to``: highway-env's v0 roads search one
+          lane segment; per guarded car); each crash row's ``steps_since_traffic_blind`` counts the policy
+          steps since the crashed car's last such step (None: none this episode). Guarded runs only.
         * ``reversing_steps``: steps ending with a negative speed (per guarded car). ``unsupervised_steps``:
           simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
           guardian found the ego reset or replaced behind its back.
@@ -466,7 +480,7 @@ class HighwayTally(Observer):
         totals["episodes"] = episodes
         totals["distance_mean"] = self.distance / episodes
         if not self.guardian:  # measured only by the guardian's monitor (and, on HighwayOvertake, from the env)
-            totals["traffic_model_violation_steps"] = None
+            totals["traffic_model_violation_steps"] = totals["traffic_blind_steps"] = None
             if not self.overtake:
                 totals["model_violation_steps"] = None
             for k in ("unchecked_entries", "unsupervised_steps", "reattachments"):
@@ -531,6 +545,7 @@ def _count_step(totals: dict, g: dict | None) -> None:
     mv = g["model_violations"]
     totals["model_violation_steps"] += int(mv["ego"] + mv["lead"] > 0)
     totals["traffic_model_violation_steps"] += int(mv["traffic"] > 0)
+    totals["traffic_blind_steps"] += int(mv.get("traffic_blind", 0) > 0)
     for k in ("follower_dropped_steps", "conflict_steps", "failsafe_steps", "unsupervised_steps"):
         totals[k] += g[k]
 

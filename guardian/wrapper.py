@@ -46,7 +46,8 @@ not see are counted (``unsupervised_steps``).
      "sim_steps": int, "clipped_steps": int, "model_clip_steps": int,
      "follower_dropped_steps": int, "conflict_steps": int,
      "failsafe_steps": int, "unsupervised_steps": int, "reattached": bool,
-     "model_violations": {"ego": int, "lead": int, "traffic": int},
+     "model_violations": {"ego": int, "lead": int, "traffic": int,   # simulation steps (guardian.monitor)
+                          "traffic_blind": int},
      "admissible_acceleration": [[lo, hi], ...],   # at the applied lateral input, last simulation step
      "admissible_lateral": [[lo, hi], ...]}        # at the applied acceleration (overtake scenarios)
 
@@ -66,7 +67,8 @@ With several guarded cars ``info["guardian"]`` is::
      "sim_steps": int,                    # the policy step's simulation steps
      "clipped_steps", "model_clip_steps", "follower_dropped_steps", "conflict_steps", "failsafe_steps",
      "unsupervised_steps": int,           # summed over the cars
-     "model_violations": {"ego": int, "lead": 0, "traffic": int}}   # summed (traffic: car 0's monitor)
+     "model_violations": {"ego": int, "lead": 0, "traffic": int, "traffic_blind": int}}
+                                          # summed (traffic: car 0's monitor; traffic_blind: each car's)
 
 (``"penalty"`` is the penalty times the number of cars overridden for safety), and at reset
 ``{"enabled", "scenario", "action", "controlled", "start_inside" (all cars), "agents_start_inside",
@@ -144,7 +146,7 @@ class _Car:
 
     def new_step(self) -> None:
         self.decisions, self.notes, self.refused_meta = [], [], None
-        self.monitor_counts = {"ego": 0, "lead": 0, "traffic": 0}
+        self.monitor_counts = {"ego": 0, "lead": 0, "traffic": 0, "traffic_blind": 0}
 
 
 class _Hook:
@@ -601,6 +603,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                "level": LEVELS[max(LEVELS.index(r["level"]) for r in records)],
                "reasons": [f"car {i}: {reason}" for i, r in enumerate(records) for reason in r["reasons"]],
                "sim_steps": max(r["sim_steps"] for r in records),
-               "model_violations": {k: sum(r["model_violations"][k] for r in records) for k in ("ego", "lead", "traffic")}}
+               "model_violations": {k: sum(r["model_violations"][k] for r in records)
+                                    for k in ("ego", "lead", "traffic", "traffic_blind")}}
         out.update({k: sum(r[k] for r in records) for k in sums})
         return out

@@ -129,3 +129,18 @@ def test_the_algorithm_is_read_from_the_policy_class_and_ppo_told_from_a2c():
     assert _algorithm_of({"policy_class": ActorCriticPolicy, "clip_range": 0.2}) == "PPO"
     assert _algorithm_of({"policy_class": ActorCriticPolicy}) == "A2C"
     assert _algorithm_of({"policy_class": dict}) is None and _algorithm_of({}) is None
+
+
+
+def test_one_episode_of_a_longer_run_replays_alone(capsys):
+    """``--first-episode I`` runs episode I of the seeding rule: the longer run less its first I episodes."""
+    def run(*extra):
+        assert main(["rollout", "--env", "highway-fast-v0", "--agent", "random", "--action", "meta", "--seed", "7",
+                     "--env-config", "duration=3", "--json", *extra]) == 0
+        return json.loads(capsys.readouterr().out)
+
+    longer, first_two = run("--episodes", "3"), run("--episodes", "2")
+    alone = run("--episodes", "1", "--first-episode", "2")
+    keys = ("steps", "override_steps", "lane_changes", "collisions", "refused_lane_changes")
+    assert alone["episodes"] == 1 and alone["steps"] > 0
+    assert {k: longer[k] - first_two[k] for k in keys} == {k: alone[k] for k in keys}

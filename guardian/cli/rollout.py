@@ -73,7 +73,8 @@ def cmd_rollout(args) -> int:
                                      safe_start=args.safe_start, env_config=env_config, horizon=args.horizon,
                                      progress=progress_bar(label), rerun_path=args.rerun,
                                      video_dir=(args.video / "-".join(x for x in (intention, agent.split("/")[-1]) if x))
-                                     if args.video else None, policy_algo=args.algo, controlled=args.controlled)
+                                     if args.video else None, policy_algo=args.algo, controlled=args.controlled,
+                                     first_episode=args.first_episode)
             except (ConfigError, ValueError) as exc:
                 return usage_error(args, str(exc))
             r.update({"env": args.env, "agent": agent, "action": args.action or "default",
@@ -197,6 +198,9 @@ def add_commands(sub) -> None:
     p.add_argument("--horizon", type=count(1), default=10, help="intention estimator horizon N; overtake scenarios")
     p.add_argument("--episodes", type=count(1), default=10)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--first-episode", type=count(0), default=0, metavar="I",
+                   help="start at episode I of the seeding rule (env seed SEED+I, agent rng [SEED, I]): "
+                        "replays episode I of a longer run alone")
     p.add_argument("--no-guardian", action="store_true", help="drive without supervision")
     p.add_argument("--no-intention", action="store_true",
                    help="keep the guardian but pin it to the bounded-velocity set; overtake scenarios")
