@@ -82,7 +82,8 @@ OVERTAKE_ENVS = (TWO_CARS_ENV, OVERTAKE_ENV)
 ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "ContinuousAction"}}
 
 
-MERGE_V0_NOTE = ("highway-env's merge-v0 {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
+MERGE_ENVS = ("merge-v0", "merge-v1")  # highway-env's MergeEnv (v1: traffic searches across lane segments)
+MERGE_V0_NOTE = ("highway-env's {env} {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
                  "and it spawns one ego); guardian/Merge-v0 is merge-v0's road and traffic for both action types and "
                  "several controlled cars (env config traffic=easy|medium|hard for the merging reference's modes)")
 
@@ -95,12 +96,12 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
     On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). ``controlled``:
     that many controlled cars under highway-env's ``MultiAgentAction`` (one agent and one guardian each).
     """
-    if env_id == "merge-v0" and action == "continuous":
-        raise ValueError(MERGE_V0_NOTE.format(what="fails with ContinuousAction"))
+    if env_id in MERGE_ENVS and action == "continuous":
+        raise ValueError(MERGE_V0_NOTE.format(env=env_id, what="fails with ContinuousAction"))
     if controlled is not None and env_id in OVERTAKE_ENVS:
         raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
-    if controlled is not None and env_id == "merge-v0":
-        raise ValueError(MERGE_V0_NOTE.format(what="has one controlled car"))
+    if controlled is not None and env_id in MERGE_ENVS:
+        raise ValueError(MERGE_V0_NOTE.format(env=env_id, what="has one controlled car"))
     config = dict(extra or {})
     if env_id in OVERTAKE_ENVS:
         from envs.highway_overtake import HighwayOvertakeEnv

@@ -58,9 +58,12 @@ def test_a_continuous_agent_on_exit_v0_stays_on_the_road():
     assert worst_depth(True) == 0.0
 
 
-def test_merge_v0_with_continuous_actions_is_refused_with_the_reason():
-    with pytest.raises(ValueError, match="merge-v0 fails with ContinuousAction.*guardian/Merge-v0"):
-        highway_rollouts("merge-v0", "random", 1, 0, action="continuous")
+@pytest.mark.parametrize("env_id", ["merge-v0", "merge-v1"])
+def test_merge_v0_with_continuous_actions_is_refused_with_the_reason(env_id):
+    with pytest.raises(ValueError, match=f"{env_id} fails with ContinuousAction.*guardian/Merge-v0"):
+        highway_rollouts(env_id, "random", 1, 0, action="continuous")
+    with pytest.raises(ValueError, match=f"{env_id} has one controlled car"):
+        highway_rollouts(env_id, "random", 1, 0, action="meta", controlled=2)
 
 
 # ---- several guarded cars ------------------------------------------------------------------------------
