@@ -171,8 +171,9 @@ def add_commands(sub) -> None:
                        parents=[library_options(), json_option()])
     p.add_argument("--env", default="guardian/Overtake-v0",
                    help="guardian/Overtake-v0 (default: the two cars of Section 6.5), guardian/HighwayOvertake-v0 "
-                        "(the overtake among traffic), highway-v0, highway-fast-v0, ..., merge-v0, merge-generic-v0, "
-                        "exit-v0, guardian/Merge-v0")
+                        "(the overtake among traffic), highway-v0, highway-fast-v0, ..., merge-v0, merge-v1, "
+                        "merge-generic-v0, exit-v0, exit-v1, guardian/Merge-v0 (v1: traffic sees across lane "
+                        "segments)")
     p.add_argument("--agent", default="random",
                    help="random | reckless | idle | merge | mpc | bad | careful | seek | brake_check | oscillate | hold | "
                         "trap, or all (Section 6.5.3's mpc, bad, careful, random)")
