@@ -30,6 +30,11 @@ from __future__ import annotations
 import numpy as np
 
 TOL = 1e-6
+COUNTS = ("ego", "lead", "traffic", "traffic_blind")  # what ``observe`` returns, per simulation step
+
+
+def no_counts() -> dict:
+    return dict.fromkeys(COUNTS, 0)
 
 
 class ModelMonitor:
@@ -45,7 +50,7 @@ class ModelMonitor:
 
     def reset(self) -> None:
         self._prev = None
-        self.totals = {"ego": 0, "lead": 0, "traffic": 0, "traffic_blind": 0}
+        self.totals = no_counts()
         self.worst = {"traffic_progress_shortfall_m": 0.0, "traffic_braking_excess": 0.0}
 
     def _snapshot(self, base, applied, ego=None):
@@ -65,9 +70,7 @@ class ModelMonitor:
         """Counts for the transition that ended now; then remember the present with ``applied``.
         ``ego``: the guarded car this monitor watches (default: the env's ego)."""
         now = self._snapshot(base, applied, ego)
-        counts = {"ego": 0, "lead": 0, "traffic": 0}
-        if self._prev is not None:
-            counts = self._compare(self._prev, now)
+        counts = self._compare(self._prev, now) if self._prev is not None else no_counts()
         counts["traffic_blind"] = int(traffic_blind_to(base.road, base.vehicle if ego is None else ego))
         for k, n in counts.items():
             self.totals[k] += n
@@ -75,7 +78,7 @@ class ModelMonitor:
         return counts
 
     def _compare(self, prev, now) -> dict:
-        counts = {"ego": 0, "lead": 0, "traffic": 0}
+        counts = no_counts()
         dt = self.dt
         lo, hi = self.d_bounds
         (ids0, xv0), (ids1, xv1) = prev["traffic"], now["traffic"]

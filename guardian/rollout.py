@@ -83,7 +83,7 @@ ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "Conti
 
 
 MERGE_ENVS = ("merge-v0", "merge-v1")  # highway-env's MergeEnv (v1: traffic searches across lane segments)
-MERGE_V0_NOTE = ("highway-env's {env} {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
+MERGE_NOTE = ("highway-env's {env} {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
                  "and it spawns one ego); guardian/Merge-v0 is merge-v0's road and traffic for both action types and "
                  "several controlled cars (env config traffic=easy|medium|hard for the merging reference's modes)")
 
@@ -97,11 +97,11 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
     that many controlled cars under highway-env's ``MultiAgentAction`` (one agent and one guardian each).
     """
     if env_id in MERGE_ENVS and action == "continuous":
-        raise ValueError(MERGE_V0_NOTE.format(env=env_id, what="fails with ContinuousAction"))
+        raise ValueError(MERGE_NOTE.format(env=env_id, what="fails with ContinuousAction"))
     if controlled is not None and env_id in OVERTAKE_ENVS:
         raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
     if controlled is not None and env_id in MERGE_ENVS:
-        raise ValueError(MERGE_V0_NOTE.format(env=env_id, what="has one controlled car"))
+        raise ValueError(MERGE_NOTE.format(env=env_id, what="has one controlled car"))
     config = dict(extra or {})
     if env_id in OVERTAKE_ENVS:
         from envs.highway_overtake import HighwayOvertakeEnv
@@ -350,7 +350,7 @@ class HighwayTally(Observer):
             changed = int(self._slot(v) != self.lanes_before[i])
             totals["lane_changes"] += changed
             _count_step(totals, r)
-            if r and r["model_violations"].get("traffic_blind"):
+            if r and r["model_violations"]["traffic_blind"]:
                 self.last_blind[i] = self.t
             if self.multi:
                 self.per_car[i]["lane_changes"] += changed
@@ -546,7 +546,7 @@ def _count_step(totals: dict, g: dict | None) -> None:
     mv = g["model_violations"]
     totals["model_violation_steps"] += int(mv["ego"] + mv["lead"] > 0)
     totals["traffic_model_violation_steps"] += int(mv["traffic"] > 0)
-    totals["traffic_blind_steps"] += int(mv.get("traffic_blind", 0) > 0)
+    totals["traffic_blind_steps"] += int(mv["traffic_blind"] > 0)
     for k in ("follower_dropped_steps", "conflict_steps", "failsafe_steps", "unsupervised_steps"):
         totals[k] += g[k]
 

@@ -90,7 +90,7 @@ from guardian.config import GuardianConfig
 from guardian.decision import LEVELS
 from guardian.ego import BicycleEgo, RoadMapEgo
 from guardian.errors import ConfigError
-from guardian.monitor import ModelMonitor
+from guardian.monitor import COUNTS as MONITOR_COUNTS, ModelMonitor, no_counts
 from guardian.pointmass import PointMassGuardian
 from guardian.roads import RoadMap
 from guardian.sensing import bicycle_state, read_road, road_scene
@@ -146,7 +146,7 @@ class _Car:
 
     def new_step(self) -> None:
         self.decisions, self.notes, self.refused_meta = [], [], None
-        self.monitor_counts = {"ego": 0, "lead": 0, "traffic": 0, "traffic_blind": 0}
+        self.monitor_counts = no_counts()
 
 
 class _Hook:
@@ -604,6 +604,6 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                "reasons": [f"car {i}: {reason}" for i, r in enumerate(records) for reason in r["reasons"]],
                "sim_steps": max(r["sim_steps"] for r in records),
                "model_violations": {k: sum(r["model_violations"][k] for r in records)
-                                    for k in ("ego", "lead", "traffic", "traffic_blind")}}
+                                    for k in MONITOR_COUNTS}}
         out.update({k: sum(r[k] for r in records) for k in sums})
         return out
