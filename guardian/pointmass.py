@@ -43,6 +43,7 @@ import numpy as np
 
 from guardian.decision import Decision, Entry
 from guardian.ego import PointMassEgo
+from guardian.lead_following import LeadFollowing, lead_following_params  # noqa: F401 - re-exported
 from guardian.scene import Scene
 from guardian.supervisor import FAILSAFE_INPUT, IntentionAwareGuardian
 from guardian.traffic import TrafficSupervisor
@@ -56,19 +57,6 @@ from rcis.validate import finite_vector
 RIGHT_LANE = 1   # ITHA lane of the lead (and of the ego at the start)
 STANDSTILL_OFFSET = RUNTIME_MARGIN * 1.001  # [m/s] see PointMassGuardian._standstill_aware
 LEFT_LANE = 2
-
-
-def lead_following_params(p: OvertakeParams) -> CarFollowingParams:
-    """``F_R``: (7.3) for the overtake ego behind the lead, with the drag and noise of (6.3).
-
-    Ego: ``v+ = (1 - b_e dt) v + dt (a_ex + w_ex)``, so its hardest sure braking is ``a_ex^min +
-    w_ex^max``; lead: ``v_L+ = max((1 - b_L dt) v_L + dt (a_L + w_Δ + w_Lx), 0)`` with ``a_L + w_Δ + w_Lx
-    >= a_L^min`` (6.6). ``h`` is centre to centre and ``h_min`` that of (6.8).
-    """
-    return CarFollowingParams(dt=p.dt, v_max=max(p.v_ex_bounds[1], p.v_Lx_bounds[1]), h_min=p.h_min,
-                              u_min=p.a_ex_bounds[0] + p.w_ex_bounds[1], u_max=p.a_ex_bounds[1] + p.w_ex_bounds[1],
-                              d_min=p.a_L_bounds[0], d_max=p.a_L_bounds[1] + p.w_delta_bounds[1] + p.w_Lx_bounds[1],
-                              drag=p.b_e, lead_drag=p.b_L)
 
 
 def lead_as_follower_params(p: OvertakeParams) -> CarFollowingParams:
@@ -126,7 +114,9 @@ class PointMassGuardian:
                                            priority=config.priority, ego_stops_at_zero=stops_at_zero)
         self.traffic = overtake_traffic_supervisor(p, config)
         self.kin = PointMassEgo(p, half_width, n_lanes, stops_at_zero)
-        self.follow = MaximalSet(lead_following_params(p))
+        y_right = (p.y_e_bounds[0], self.kin.centre(RIGHT_LANE) + self.kin.lane_width / 2 - half_width)
+        self.following = LeadFollowing(p, library.models, y_right, self.kin.centre(RIGHT_LANE), stops_at_zero)
+        self.follow = self.following.set
         self.lead_follower = MaximalSet(lead_as_follower_params(p))
         self.reset()
 
@@ -135,11 +125,16 @@ class PointMassGuardian:
         self.home = None
 
     # ---- the composed invariant set -----------------------------------------------------------------
+    def intentions(self) -> tuple:
+        """The lead's intention models not ruled out (none with ``use_intention`` off): ``F_R^M``'s M."""
+        return tuple(self.lead.estimator.valid) if self.config.use_intention else ()
+
     def in_follow_set(self, x) -> bool:
-        """``x`` in ``F_R``: the body in the right lane only, the lead ahead, self-safe towards it."""
-        v, y, h, vL = (float(a) for a in x)
-        return (self.kin.lanes_at(y) == {RIGHT_LANE} and h > 0 and y >= self.params.y_e_bounds[0]
-                and bool(self.follow.contains([[v, h, vL]])[0]))
+        """``x`` in ``F_R^M``: the body in the right lane only, the lead ahead, self-safe towards it for
+        every lead of the intentions not ruled out (``guardian.lead_following``)."""
+        x = np.asarray(x, float)
+        return (self.kin.lanes_at(float(x[1])) == {RIGHT_LANE} and x[2] > 0 and x[1] >= self.params.y_e_bounds[0]
+                and self.following.contains(x, self.intentions()))
 
     def inside(self, x, scene: Scene | None = None) -> bool:
         """``x`` in the composed invariant set ``K`` (and self-safe towards traffic when a scene is given)."""
@@ -183,7 +178,7 @@ class PointMassGuardian:
         elif self.home not in lanes:
             self.home = min(lanes, key=lambda k: abs(self.kin.centre(k) - x[1]))
         d = Decision(proposed=u.tolist(), applied=[], changed="none", active_set=view.name)
-        parts = self._parts(x, scene, lanes, view, d, float(u[1]))
+        parts = self._parts(x, scene, lanes, view, d, u)
         applied = self._choose(x, u, lanes, view, parts, d)
         d.applied = applied.tolist()
         d.entered = sorted(self.kin.next_lanes(x[1], applied[1]) - lanes)
@@ -209,12 +204,12 @@ class PointMassGuardian:
             d.admissible_acceleration, d.admissible_lateral = q.ranges(0, applied[1]), q.ranges(1, applied[0])
         return applied, d
 
-    def _parts(self, x, scene: Scene, lanes: frozenset, view, d: Decision, u_lateral: float) -> list[_Part]:
+    def _parts(self, x, scene: Scene, lanes: frozenset, view, d: Decision, u) -> list[_Part]:
         p, kin = self.params, self.kin
         v, y, h, vL = (float(a) for a in x)
-        proposed_new = kin.next_lanes(y, u_lateral) - lanes  # a refusal is said when the proposal would enter
+        proposed_new = kin.next_lanes(y, float(u[1])) - lanes  # a refusal is said when the proposal would enter
         full = [(0.0, math.inf)]
-        self_cache, follower_cache, entries = {}, {}, {}
+        self_cache, follower_cache, entries, follow_speeds = {}, {}, {}, []
         parts = []
         for lo, hi, nxt in kin.lateral_partition(y):
             new = nxt - lanes
@@ -248,7 +243,9 @@ class PointMassGuardian:
             elif h > 0 and RIGHT_LANE in nxt and kin.may_stay_in(y, (lo + hi) / 2, frozenset({RIGHT_LANE})):
                 target = "both"  # the noise decides whether the body is still in the right lane only: K needs
                 # F_R if it is, C if it is not, so the input must serve both
-            follow = self._follow_speeds(v, h, vL) if target != "C" else full
+            if target != "C" and not follow_speeds:
+                follow_speeds.append(self.following.next_speeds(x, self.intentions(), wanted=float(u[0])))
+            follow = follow_speeds[0] if target != "C" else full
             lat_lo, lat_hi = kin.lateral_within(y, p.y_e_bounds[0], p.y_e_bounds[1])
             within = (max(lo, lat_lo), min(hi, lat_hi))  # (6.8)'s lateral bounds; C's polygons hold them too
             if within[0] > within[1]:
@@ -258,9 +255,8 @@ class PointMassGuardian:
         return parts
 
     def _follow_speeds(self, v: float, h: float, vL: float) -> list:
-        """Next ego speeds keeping ``(v, h, v_L)`` in ``F_R`` for every lead (7.4)."""
-        prm = self.follow.params
-        return self.follow.speed_intervals(h + prm.dt * (vL - v), float(prm.worst_lead_speed(vL)))
+        """Next ego speeds keeping ``(v, h, v_L)`` in ``F_R`` for every lead its physical bounds allow (7.4)."""
+        return self.following.next_speeds([v, 0.0, h, vL])
 
     def _lead_as_car(self, v: float, h: float, vL: float, lanes: frozenset, nxt: frozenset) -> list:
         """Next ego speeds treating the lead as an ordinary car of lane 1 with its physical bounds."""

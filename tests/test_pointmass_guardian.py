@@ -134,10 +134,11 @@ def test_at_standstill_behind_a_stopped_lead_the_ego_stops_and_never_reverses(tr
 
 def test_follow_set_is_invariant_under_every_lead_its_bounds_allow(traffic_library):
     """F_R as a falsifier: states drawn in it, the lead braking or speeding as (6.6) allows, the ego's
-    noise at its box's corners, the guardian's input: every successor is in F_R again."""
+    noise at its box's corners, the guardian's input: every successor is in F_R again. The lead follows no
+    intention, so the guardian is told not to use one (F_R^M with intentions: tests/test_lead_following.py)."""
     lib, rng = traffic_library, np.random.default_rng(4)
     p = lib.params
-    g = _guard(lib, n_lanes=2)
+    g = PointMassGuardian(lib, 2, HALF, traffic=True, config=GuardianConfig(use_intention=False))
     S = g.follow
     drawn = 0
     while drawn < 300:
