@@ -1,14 +1,16 @@
 """Many guarded cars on highway-env's on-ramp merge: trivial against ordered, beside Section 7.4.1.
 
 Run: python benchmarks/bench_multiagent.py [--episodes E] [--n 2 4 8] [--density easy medium hard]
-     [--agent merge] [--action meta] [--seed 0] [--no-unguarded] [--json]
+     [--agent merge] [--action meta] [--seed 0] [--no-unguarded] [--v0-search] [--json]
 
 Every setting runs ``guardian rollout``'s loop (``guardian.rollout.highway_rollouts``) on ``guardian/Merge-v0``
 (merge-v0's road: two main lanes and an on-ramp that ends) with N controlled cars among the on-ramp
 merging reference's IDM traffic (easy 1-3, medium 2-4, hard 3-5 other cars; 20 s at 5 Hz, as there),
 each controlled car with its own agent and its own guardian, for ``trivial`` (no guarded car assumes
 anything of another) and ``ordered`` (guarded cars announce their lane changes in Example 8's order).
-The same seeds for every setting. An unguarded row per (N, density) is beside (``--no-unguarded`` drops it).
+The same seeds for every setting. Traffic searches for the cars around it across lane segments
+(guardian/Merge-v0's default); ``--v0-search`` gives merge-v0's search on one segment (traffic then may
+not see a guarded car on the next segment: docs/roads.md). An unguarded row per (N, density) is beside (``--no-unguarded`` drops it).
 
 Figures per setting, by ``HighwayTally.result``'s rules: episodes; mean distance per car and episode [m];
 lane changes and merges completed (cars that began on the ramp and ended on the main road) out of
@@ -35,6 +37,12 @@ warnings.filterwarnings("ignore", message=".*out of date.*")
 
 ENV = "guardian/Merge-v0"
 REFERENCE = {"duration": 20, "policy_frequency": 5}   # the merging reference's episodes
+V0_SEARCH = False  # --v0-search: merge-v0's neighbour search (one lane segment)
+
+
+def _config(density: str) -> dict:
+    extra = {"neighbour_vehicles_connected_lanes": False} if V0_SEARCH else {}
+    return dict(REFERENCE, traffic=density, **extra)
 
 
 def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: int, agent: str, action: str) -> dict:
@@ -43,7 +51,7 @@ def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: i
 
     guarded = overapprox is not None
     r = highway_rollouts(ENV, agent, episodes, seed, action=action, controlled=n, guardian=guarded,
-                         env_config=dict(REFERENCE, traffic=density),
+                         env_config=_config(density),
                          guardian_config=GuardianConfig(overapprox=overapprox) if guarded else None)
     return {"n": n, "density": density, "overapprox": overapprox or "unguarded", "episodes": episodes,
             "distance_per_car": r["distance_mean"], "lane_changes": r["lane_changes"], "merges": r["merges"],
@@ -64,7 +72,7 @@ def cost(n: int, density: str, overapprox: str, episodes: int, seed: int, agent:
     from guardian.rollout import highway_env_config
     from guardian.wrapper import Guardian
 
-    config = highway_env_config(ENV, action, extra=dict(REFERENCE, traffic=density), controlled=n)
+    config = highway_env_config(ENV, action, extra=_config(density), controlled=n)
     env = Guardian(gym.make(ENV, config=config), None, GuardianConfig(overapprox=overapprox))
     decide, sim = [], []
     original = env._supervise_highway
@@ -106,8 +114,11 @@ def main(argv=None) -> int:
     p.add_argument("--action", choices=["meta", "continuous"], default="meta")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-unguarded", action="store_true")
+    p.add_argument("--v0-search", action="store_true", help="merge-v0's neighbour search (one lane segment)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
+    global V0_SEARCH
+    V0_SEARCH = args.v0_search
     rows = []
     if not args.json:
         print(HEADER)

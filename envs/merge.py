@@ -23,6 +23,11 @@ ends at an obstacle) with:
   a change of lane index for continuous actions), and ``duration`` [s] after which an episode is
   truncated (``merge-v0`` itself has none: an agent that stops would never end it).
 
+Traffic finds the car ahead and behind across lane segments (highway-env's
+``neighbour_vehicles_connected_lanes``, what its ``merge-v1`` sets): with ``merge-v0``'s search a car near
+a segment's end does not see a car on the next segment, brakes for it too late and changes lanes in front
+of it (docs/roads.md). ``neighbour_vehicles_connected_lanes: False`` gives ``merge-v0``'s search back.
+
 Episodes end (terminated) when a controlled car crashes, or in the ``merge-v0`` traffic when the ego has
 passed x = 370 as there.
 """
@@ -43,7 +48,8 @@ class GuardedMergeEnv(MergeEnv):
     @classmethod
     def default_config(cls) -> dict:
         cfg = super().default_config()
-        cfg.update({"traffic": "merge-v0", "controlled_vehicles": 1, "duration": 40})
+        cfg.update({"traffic": "merge-v0", "controlled_vehicles": 1, "duration": 40,
+                    "neighbour_vehicles_connected_lanes": True})
         return cfg
 
     def _reset(self) -> None:

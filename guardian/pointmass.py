@@ -19,7 +19,10 @@ therefore keeps the ego in
   keeps ``a_L + w_Δ + w_Lx >= a_L^min``), and ``h >= h_min`` of (6.8). The set is the maximal RCIS of
   that pair (``itha.car_following.MaximalSet`` with drag), so the ego can wait behind the lead for
   ever, down to standstill, without the left lane: this needs a safe set whose speed floor is 0, not
-  the dissertation's 16 m/s.
+  the dissertation's 16 m/s. With the intention in use the guardian keeps ``F_R^M`` instead
+  (``guardian.lead_following``): ``F_R`` grown by the states from which braking reaches it under every
+  lead of the intentions ``M`` the estimator has not ruled out, an RCIS of each of them; ``M`` only
+  shrinks, so the set only grows, and with every intention ruled out it is ``F_R`` again.
 * ``C``: the active intention-aware set (Theorem 4), used while the body overlaps the left lane: the
   entry into it was ρ̂-responsible (7.5), so from then on the cars behind in it answer for themselves,
   and ``C_left ⊆ C`` is invariant with any braking (speed floor 0), so self-safety towards a car
@@ -348,7 +351,9 @@ class PointMassGuardian:
         named = [("self-safety towards the traffic ahead", part.self_safe), ("the entry's responsibility (7.5)", part.entry),
                  ("keeping the followers of the lanes being entered safe", part.followers)]
         if part.target in ("follow", "both"):
-            named.append(("F_R: self-safety behind the lead, whatever it brakes within its bounds", part.follow))
+            models = self.intentions()
+            lead = f"as the intentions not ruled out ({', '.join(models)}) let it" if models else "within its bounds"
+            named.append((f"F_R: self-safety behind the lead, whatever it brakes {lead}", part.follow))
         for name, speeds in named:
             if refuses(speeds):
                 d.note(f"acceleration limited by {name}")

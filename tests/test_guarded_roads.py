@@ -243,10 +243,11 @@ def test_the_at_fault_crashes_found_on_merge_roads_follow_traffic_that_did_not_s
     """The two collisions the judge gave a guarded car in 1,000-episode runs on merge roads: each came
     right after steps in which a traffic car's v0 search (its own lane segment) missed the ego, a
     difference from (7.3) that is counted (``traffic_blind_steps``), not covered. With highway-env's
-    connected-lane search (merge-v1's) the same episodes end without a collision."""
+    connected-lane search (merge-v1's, guardian/Merge-v0's default) the same episodes end without a collision."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        r = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode)
+        r = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
+                             env_config={"neighbour_vehicles_connected_lanes": False})
         assert r["traffic_blind_steps"] > 0
         for crash in r["crashes"]:
             if crash["fault"] == "ego":
@@ -254,3 +255,12 @@ def test_the_at_fault_crashes_found_on_merge_roads_follow_traffic_that_did_not_s
         seen = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
                                 env_config={"neighbour_vehicles_connected_lanes": True})
     assert seen["collisions"] == 0 and seen["traffic_blind_steps"] == 0
+
+
+def test_guarded_merge_traffic_sees_across_lane_segments_by_default():
+    """guardian/Merge-v0 sets highway-env's connected-lane search (merge-v1's); False gives merge-v0's back."""
+    for config, expected in (({}, True), ({"neighbour_vehicles_connected_lanes": False}, False)):
+        env = gym.make("guardian/Merge-v0", config=config)
+        env.reset(seed=0)
+        assert env.unwrapped.road.neighbour_vehicles_connected_lanes is expected
+        env.close()

@@ -203,7 +203,10 @@ def test_render_adds_the_guardian_panel(traffic_library):
 
 
 def test_starts_are_reported_and_can_be_drawn_again_until_safe(traffic_library):
-    env = _guarded(traffic_library, "aggressive", "random", traffic=4)
+    """Without the intention K holds F_R, which many of the env's own starts (inside C_bnd) miss; with
+    it, F_R^M holds almost all of them (the campaign: 1 start outside in 256)."""
+    cfg = highway_env_config(OVERTAKE_ENV, None, "aggressive", "random", 4, traffic_library, dict(SHORT))
+    env = Guardian(gym.make(OVERTAKE_ENV, config=cfg), traffic_library, GuardianConfig(use_intention=False))
     outside = [not env.reset(seed=s)[1]["guardian"]["start_inside"] for s in range(30)]
     assert any(outside)  # the env's own starts (inside C_bnd) are not all inside K
     for s in range(10):

@@ -66,7 +66,7 @@ def test_the_intention_aware_follow_set_is_invariant_under_the_lead_of_its_inten
     lib, rng = traffic_library, np.random.default_rng(11)
     p = lib.params
     g = _guard(lib)
-    for episode in range(60):
+    for episode in range(40):
         g.reset()
         x = _draw(g, rng, ("aggressive", "cautious"), outside_plain=True)
         corners = bool(episode % 2)
