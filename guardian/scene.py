@@ -24,6 +24,8 @@ class Car:
     announces: bool = False   # takes part in the ordered over-approximation (a guarded car)
     crashed: bool = False     # has already collided (a wreck: it may stop faster than the model allows)
     fixed: bool = False       # never moves and is never pushed (an obstacle, a lane's end)
+    blind: bool = False       # does not see the ego (highway-env's v0 search): neither brakes for it nor
+                              # weighs it when changing lanes (guardian.sensing.blind_to)
 
 
 @dataclass(frozen=True)

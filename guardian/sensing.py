@@ -16,6 +16,8 @@ import functools
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from highway_env.road.lane import CircularLane, SineLane, StraightLane
 from highway_env.vehicle.controller import ControlledVehicle
 
@@ -256,10 +258,36 @@ def _straight_body_lanes(veh, road: Road) -> frozenset:
     return _lanes_overlapped(y - r, y + r, road.n_lanes, road.lane_width)
 
 
+BLIND_MARGIN = 1.0   # [m] highway-env's v0 search finds a car within a lane's width / 2 + 1 m of its centre line
+
+
+def blind_to(base, veh, ego) -> bool:
+    """Whether traffic car ``veh`` cannot see ``ego`` now or after the next policy step.
+
+    On highway-env's v0 roads (``neighbour_vehicles_connected_lanes`` false: merge-v0, exit-v0) an IDM
+    car looks for the cars ahead of and behind it, for braking and for MOBIL's lane changes, on the lanes
+    of its own segment only (``Road.neighbour_vehicles``: ``on_lane`` with a margin of 1 m). A car whose
+    segment holds no lane the ego's centre is on, now or one policy step of full acceleration further,
+    neither brakes for the ego nor weighs it when it changes lanes. Guarded cars do not search this way.
+    """
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    road = base.road
+    if getattr(road, "neighbour_vehicles_connected_lanes", True) or not isinstance(veh, IDMVehicle) \
+            or veh.lane_index is None:
+        return False
+    lanes = road.network.graph[veh.lane_index[0]][veh.lane_index[1]]
+    period = 1.0 / base.config.get("policy_frequency", 1)
+    reach = max(float(ego.speed), 0.0) * period + 0.5 * 6.0 * period ** 2
+    ahead = ego.position + reach * np.array([math.cos(ego.heading), math.sin(ego.heading)])
+    return not all(any(lane.on_lane(pos, margin=BLIND_MARGIN) for lane in lanes) for pos in (ego.position, ahead))
+
+
 def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene:
     from guardian.ego import BicycleEgo
 
     others = []
+    ego_front = road.longitudinal(ego.lane_index, float(ego.position[0]), float(ego.position[1])) + ego.LENGTH / 2
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego:
             continue
@@ -268,9 +296,13 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
         slots.add(road.slot_of(veh.lane_index))
         if _is_controlled(type(veh)):
             slots.add(road.slot_of(veh.target_lane_index))
+        front = road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2
+        blind = blind_to(base, veh, ego)
+        if blind and front >= ego_front:  # it may change into a lane beside it in front of the ego unseen
+            slots |= {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
         lanes = frozenset(road.itha_lane(j) for j in slots) | announced.get(id(veh), frozenset())
-        others.append(Car(road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2, float(veh.speed), lanes,
-                          veh.LENGTH, f"car {k}", id(veh) in guarded, bool(veh.crashed)))
+        others.append(Car(front, float(veh.speed), lanes, veh.LENGTH, f"car {k}", id(veh) in guarded,
+                          bool(veh.crashed), blind=blind))
     for k, obj in enumerate(base.road.objects):
         if not (getattr(obj, "solid", True) and getattr(obj, "collidable", True)):
             continue

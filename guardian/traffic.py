@@ -169,6 +169,10 @@ class TrafficSupervisor:
             return EntryVerdict(lane, False, [], "no such lane")
         if abs(lane - home) != 1:
             raise ValueError(f"lane {lane} is not next to lane {home}")
+        follower = scene.follower(lane)
+        if follower is not None and follower.blind:
+            return EntryVerdict(lane, False, [], f"{follower.name} behind in lane {lane} does not see the ego "
+                                                 f"(highway-env's v0 search ends at its lane segment): it would not brake")
         p, v, ln, lengths = [ego.front], [min(ego.speed, self.params.v_max)], [home], [ego.length]
         silent = set()
         for c in scene.others:

@@ -237,23 +237,22 @@ def test_a_crash_between_two_guarded_cars_counts_once_and_against_the_one_blamed
 @pytest.mark.parametrize("env_id, action, seed, episode", [
     ("merge-v0", "meta", 0, 147),                     # an IDM car changed lanes in front of the ego unseen
     ("guardian/Merge-v0", "continuous", 250, 176),    # a follower on the previous segment did not brake
+    ("guardian/Merge-v0", "continuous", 500, 182),
 ])
-def test_the_at_fault_crashes_found_on_merge_roads_follow_traffic_that_did_not_see_the_ego(env_id, action, seed,
-                                                                                         episode):
-    """The two collisions the judge gave a guarded car in 1,000-episode runs on merge roads: each came
-    right after steps in which a traffic car's v0 search (its own lane segment) missed the ego, a
-    difference from (7.3) that is counted (``traffic_blind_steps``), not covered. With highway-env's
-    connected-lane search (merge-v1's, guardian/Merge-v0's default) the same episodes end without a collision."""
+def test_the_at_fault_crashes_found_on_merge_roads_with_traffic_that_did_not_see_the_ego_are_covered(
+        env_id, action, seed, episode):
+    """The three collisions the judge gave a guarded car in 1,000-episode runs with highway-env's v0 search
+    (a car sees only its own lane segment): each came right after steps in which a traffic car missed the
+    ego. The guardian now treats such a car as one that neither brakes for the ego nor weighs it when
+    changing lanes (``guardian.sensing.blind_to``): the same episodes, blind steps and all, end without a
+    collision; with the connected search (merge-v1's, guardian/Merge-v0's default) nobody is blind."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         r = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
                              env_config={"neighbour_vehicles_connected_lanes": False})
-        assert r["traffic_blind_steps"] > 0
-        for crash in r["crashes"]:
-            if crash["fault"] == "ego":
-                assert crash["steps_since_traffic_blind"] is not None and crash["steps_since_traffic_blind"] <= 3
         seen = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
                                 env_config={"neighbour_vehicles_connected_lanes": True})
+    assert r["traffic_blind_steps"] > 0 and r["collisions"] == 0
     assert seen["collisions"] == 0 and seen["traffic_blind_steps"] == 0
 
 

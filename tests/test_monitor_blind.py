@@ -56,3 +56,69 @@ def test_the_monitor_counts_blind_simulation_steps():
     ego.position[0] = 102.0
     assert monitor.observe(base, [0.0, 0.0])["traffic_blind"] == 0
     assert monitor.totals["traffic_blind"] == 1
+
+
+# ---- the guardian's cover: a car that cannot see the ego neither brakes for it nor weighs it ----------
+def _two_lane_road(connected: bool):
+    from highway_env.road.lane import LineType
+
+    net = RoadNetwork()
+    for k in range(2):
+        for start, end, a, b in ((0.0, 100.0, "a", "b"), (100.0, 400.0, "b", "c")):
+            net.add_lane(a, b, StraightLane([start, 4.0 * k], [end, 4.0 * k],
+                                            line_types=(LineType.CONTINUOUS, LineType.CONTINUOUS)))
+    road = Road(network=net)
+    road.neighbour_vehicles_connected_lanes = connected
+    return road
+
+
+class _Base:
+    def __init__(self, road, ego):
+        self.road, self.vehicle, self.config = road, ego, {"policy_frequency": 1}
+
+
+def _scene_of(road, ego, ego_slot):
+    from guardian.sensing import read_road_map, road_scene
+
+    road_map = read_road_map(road.network)
+    return road_scene(_Base(road, ego), road_map, frozenset({road_map.itha_lane(ego_slot)}), ego), road_map
+
+
+@pytest.mark.parametrize("connected", [False, True])
+def test_an_entry_in_front_of_a_follower_that_cannot_see_the_ego_is_refused(connected):
+    """The ego 20 m past a segment's end in lane 0 asks for lane 1, where an IDM car on the previous
+    segment is 30 m behind: with the v0 search it would not brake for the ego (the crashes of
+    docs/roads.md), so the entry is refused; with the connected search it sees the ego."""
+    from guardian.traffic import TrafficSupervisor
+    from itha.car_following import CarFollowingParams
+
+    road = _two_lane_road(connected)
+    follower = IDMVehicle(road, [90.0, 4.0], speed=20.0)
+    ego = Vehicle(road, [120.0, 0.0], speed=20.0)
+    road.vehicles += [follower, ego]
+    scene, road_map = _scene_of(road, ego, 0)
+    (car,) = scene.others
+    assert car.blind is not connected
+    params = CarFollowingParams(dt=0.1, v_max=40.0, h_min=2.0, u_min=-6.0, u_max=6.0, d_min=-6.0, d_max=6.0)
+    verdict = TrafficSupervisor(params, params, "trivial").entry(scene, road_map.itha_lane(1))
+    assert verdict.responsible is connected
+    if not connected:
+        assert "does not see the ego" in verdict.reason
+
+
+def test_a_car_ahead_that_cannot_see_the_ego_counts_in_the_lanes_it_may_change_into():
+    """An IDM car ahead on the next segment, in the lane beside the ego's: its MOBIL looks for its new
+    follower on its own segment and would change in front of the ego unseen, so the ego keeps room from
+    it as if it were in its lane too; a car that sees the ego stays in its own lane."""
+    road = _two_lane_road(False)
+    ahead = IDMVehicle(road, [130.0, 4.0], speed=15.0)
+    ego = Vehicle(road, [70.0, 0.0], speed=20.0)
+    road.vehicles += [ahead, ego]
+    scene, road_map = _scene_of(road, ego, 0)
+    (car,) = scene.others
+    assert car.blind and car.lanes == {road_map.itha_lane(0), road_map.itha_lane(1)}
+    assert scene.leader(road_map.itha_lane(0)) is car
+    ego.position[0] = 125.0   # now on the same segment: it sees the ego and stays in its own lane
+    scene, _ = _scene_of(road, ego, 0)
+    (car,) = scene.others
+    assert not car.blind and car.lanes == {road_map.itha_lane(1)}
