@@ -250,10 +250,11 @@ def test_the_at_fault_crashes_found_on_merge_roads_with_traffic_that_did_not_see
         warnings.simplefilter("ignore", DeprecationWarning)
         r = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
                              env_config={"neighbour_vehicles_connected_lanes": False})
-        seen = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
-                                env_config={"neighbour_vehicles_connected_lanes": True})
+        if env_id == "merge-v0":  # guardian/Merge-v0's default search is the connected one: its own test
+            seen = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
+                                    env_config={"neighbour_vehicles_connected_lanes": True})
+            assert seen["collisions"] == 0 and seen["traffic_blind_steps"] == 0
     assert r["traffic_blind_steps"] > 0 and r["collisions"] == 0
-    assert seen["collisions"] == 0 and seen["traffic_blind_steps"] == 0
 
 
 def test_guarded_merge_traffic_sees_across_lane_segments_by_default():

@@ -61,12 +61,12 @@ def test_the_lead_speed_bounds_hold_every_successor_of_the_model(traffic_library
 
 @pytest.mark.parametrize("model", ["aggressive", "cautious"])
 def test_the_intention_aware_follow_set_is_invariant_under_the_lead_of_its_intentions(traffic_library, model):
-    """States of F_R^{a,c} outside F_R, the guardian on a proposal of full throttle, the lead of ``model``
+    """States of F_R^{a,c} outside F_R (20 episodes of 40 steps), the guardian on a proposal of full throttle, the lead of ``model``
     with its disturbance at random or at the box's corners: always back in the set, never below h_min."""
     lib, rng = traffic_library, np.random.default_rng(11)
     p = lib.params
     g = _guard(lib)
-    for episode in range(40):
+    for episode in range(20):
         g.reset()
         x = _draw(g, rng, ("aggressive", "cautious"), outside_plain=True)
         corners = bool(episode % 2)
