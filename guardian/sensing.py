@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from highway_env.road.lane import CircularLane, SineLane, StraightLane
+from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 
 from guardian.bicycle import EgoState
@@ -259,10 +260,21 @@ def _straight_body_lanes(veh, road: Road) -> frozenset:
 
 
 BLIND_MARGIN = 1.0   # [m] highway-env's v0 search finds a car within a lane's width / 2 + 1 m of its centre line
+BLIND_ACCEL = 6.0    # [m/s^2] the ego's hardest acceleration over the policy step blindness looks ahead
 
 
-def blind_to(base, veh, ego) -> bool:
-    """Whether traffic car ``veh`` cannot see ``ego`` now or after the next policy step.
+def ego_probes(base, ego) -> tuple:
+    """Where ``ego``'s centre is now and after one policy step of full acceleration (``blind_to``'s
+    points); empty when traffic searches across lane segments, where nobody is blind."""
+    if getattr(base.road, "neighbour_vehicles_connected_lanes", True):
+        return ()
+    period = 1.0 / base.config.get("policy_frequency", 1)
+    reach = max(float(ego.speed), 0.0) * period + 0.5 * BLIND_ACCEL * period ** 2
+    return (ego.position, ego.position + reach * np.array([math.cos(ego.heading), math.sin(ego.heading)]))
+
+
+def blind_to(base, veh, probes) -> bool:
+    """Whether traffic car ``veh`` cannot see the ego at one of its ``probes`` (``ego_probes``).
 
     On highway-env's v0 roads (``neighbour_vehicles_connected_lanes`` false: merge-v0, exit-v0) an IDM
     car looks for the cars ahead of and behind it, for braking and for MOBIL's lane changes, on the lanes
@@ -270,17 +282,10 @@ def blind_to(base, veh, ego) -> bool:
     segment holds no lane the ego's centre is on, now or one policy step of full acceleration further,
     neither brakes for the ego nor weighs it when it changes lanes. Guarded cars do not search this way.
     """
-    from highway_env.vehicle.behavior import IDMVehicle
-
-    road = base.road
-    if getattr(road, "neighbour_vehicles_connected_lanes", True) or not isinstance(veh, IDMVehicle) \
-            or veh.lane_index is None:
+    if not probes or not isinstance(veh, IDMVehicle) or veh.lane_index is None:
         return False
-    lanes = road.network.graph[veh.lane_index[0]][veh.lane_index[1]]
-    period = 1.0 / base.config.get("policy_frequency", 1)
-    reach = max(float(ego.speed), 0.0) * period + 0.5 * 6.0 * period ** 2
-    ahead = ego.position + reach * np.array([math.cos(ego.heading), math.sin(ego.heading)])
-    return not all(any(lane.on_lane(pos, margin=BLIND_MARGIN) for lane in lanes) for pos in (ego.position, ahead))
+    lanes = base.road.network.graph[veh.lane_index[0]][veh.lane_index[1]]
+    return not all(any(lane.on_lane(pos, margin=BLIND_MARGIN) for lane in lanes) for pos in probes)
 
 
 def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene:
@@ -288,6 +293,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
 
     others = []
     ego_front = road.longitudinal(ego.lane_index, float(ego.position[0]), float(ego.position[1])) + ego.LENGTH / 2
+    probes = ego_probes(base, ego)
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego:
             continue
@@ -297,7 +303,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
         if _is_controlled(type(veh)):
             slots.add(road.slot_of(veh.target_lane_index))
         front = road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2
-        blind = blind_to(base, veh, ego)
+        blind = blind_to(base, veh, probes)
         if blind and front >= ego_front:  # it may change into a lane beside it in front of the ego unseen
             slots |= {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
         lanes = frozenset(road.itha_lane(j) for j in slots) | announced.get(id(veh), frozenset())
@@ -313,9 +319,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
             others.append(Car(road.longitudinal(index, x, y) + obj.LENGTH / 2, 0.0,
                               frozenset(road.itha_lane(j) for j in slots), obj.LENGTH, f"obstacle {k}", fixed=True))
     others.extend(road.end_cars())
-    x, y = float(ego.position[0]), float(ego.position[1])
-    me = Car(road.longitudinal(ego.lane_index, x, y) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes),
-             ego.LENGTH, "ego", id(ego) in guarded)
+    me = Car(ego_front, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego", id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
 
 

@@ -84,6 +84,17 @@ def _scene_of(road, ego, ego_slot):
     return road_scene(_Base(road, ego), road_map, frozenset({road_map.itha_lane(ego_slot)}), ego), road_map
 
 
+def _ego_and_one_car(connected: bool, car_x: float, car_speed: float, ego_x: float):
+    """The ego in slot 0 at ``ego_x`` and one IDM car in slot 1: (road, ego, road map, the car's Car)."""
+    road = _two_lane_road(connected)
+    car = IDMVehicle(road, [car_x, 4.0], speed=car_speed)
+    ego = Vehicle(road, [ego_x, 0.0], speed=20.0)
+    road.vehicles += [car, ego]
+    scene, road_map = _scene_of(road, ego, 0)
+    (seen,) = scene.others
+    return road, ego, road_map, scene, seen
+
+
 @pytest.mark.parametrize("connected", [False, True])
 def test_an_entry_in_front_of_a_follower_that_cannot_see_the_ego_is_refused(connected):
     """The ego 20 m past a segment's end in lane 0 asks for lane 1, where an IDM car on the previous
@@ -92,12 +103,7 @@ def test_an_entry_in_front_of_a_follower_that_cannot_see_the_ego_is_refused(conn
     from guardian.traffic import TrafficSupervisor
     from itha.car_following import CarFollowingParams
 
-    road = _two_lane_road(connected)
-    follower = IDMVehicle(road, [90.0, 4.0], speed=20.0)
-    ego = Vehicle(road, [120.0, 0.0], speed=20.0)
-    road.vehicles += [follower, ego]
-    scene, road_map = _scene_of(road, ego, 0)
-    (car,) = scene.others
+    _, _, road_map, scene, car = _ego_and_one_car(connected, 90.0, 20.0, 120.0)
     assert car.blind is not connected
     params = CarFollowingParams(dt=0.1, v_max=40.0, h_min=2.0, u_min=-6.0, u_max=6.0, d_min=-6.0, d_max=6.0)
     verdict = TrafficSupervisor(params, params, "trivial").entry(scene, road_map.itha_lane(1))
@@ -110,12 +116,7 @@ def test_a_car_ahead_that_cannot_see_the_ego_counts_in_the_lanes_it_may_change_i
     """An IDM car ahead on the next segment, in the lane beside the ego's: its MOBIL looks for its new
     follower on its own segment and would change in front of the ego unseen, so the ego keeps room from
     it as if it were in its lane too; a car that sees the ego stays in its own lane."""
-    road = _two_lane_road(False)
-    ahead = IDMVehicle(road, [130.0, 4.0], speed=15.0)
-    ego = Vehicle(road, [70.0, 0.0], speed=20.0)
-    road.vehicles += [ahead, ego]
-    scene, road_map = _scene_of(road, ego, 0)
-    (car,) = scene.others
+    road, ego, road_map, scene, car = _ego_and_one_car(False, 130.0, 15.0, 70.0)
     assert car.blind and car.lanes == {road_map.itha_lane(0), road_map.itha_lane(1)}
     assert scene.leader(road_map.itha_lane(0)) is car
     ego.position[0] = 125.0   # now on the same segment: it sees the ego and stays in its own lane
