@@ -227,7 +227,55 @@ class RoadMap:
     def body_slots(self, x, y, heading, length: float, width: float, margin: float = 0.0, dx=0.0, dy=0.0) -> frozenset:
         """Slots whose strips the bodies at ``(x, y, heading)`` (arrays allowed: the union over all) overlap:
         each body widened by ``margin`` and swept by ``(dx, dy)`` (its motion over a step); a slot counts
-        only where it is present along the body's extent."""
+        only where it is present along the body's extent.
+
+        One body (all scalars) is answered from a memo of the bodies asked before (every guarded car's
+        scene reads every car's body once per simulation step); the same arithmetic either way."""
+        if all(isinstance(v, (int, float)) for v in (x, y, heading, dx, dy)):
+            return self.memo(("body", x, y, heading, length, width, margin, dx, dy),
+                             lambda: self._one_body_slots(float(x), float(y), float(heading), length, width, margin,
+                                                          float(dx), float(dy)))
+        return self._body_slots(x, y, heading, length, width, margin, dx, dy)
+
+    def memo(self, key: tuple, compute):
+        """``compute()``, remembered under ``key`` for as long as this map (a function of the road and of
+        ``key`` alone: geometry read from the network this map was read from)."""
+        memo = self.__dict__.get("_memo")
+        if memo is None or len(memo) > 50_000:
+            memo = {}
+            object.__setattr__(self, "_memo", memo)
+        out = memo.get(key)
+        if out is None:
+            out = memo[key] = compute()
+        return out
+
+    def _one_body_slots(self, x, y, h, length, width, margin, dx, dy) -> frozenset:
+        """``_body_slots`` for one body, in floats (the same operations in the same order)."""
+        c, s = abs(math.cos(h)), abs(math.sin(h))
+        ry = length / 2 * s + width / 2 * c + margin
+        rx = length / 2 * c + width / 2 * s + margin
+        ylo, yhi = y - ry + min(dy, 0.0), y + ry + max(dy, 0.0)
+        xlo, xhi = x - rx + min(dx, 0.0), x + rx + max(dx, 0.0)
+        half = self.lane_width / 2
+        out = set()
+        for k, spans in enumerate(self.spans):
+            yk = self.slot_y(k)
+            if ylo < yk + half and yhi > yk - half and any(xlo < hi and xhi > lo for lo, hi in spans):
+                out.add(k)
+        sweep = float(np.hypot(dx, dy))
+        for strip in self.branches:
+            if strip.slot in out:
+                continue
+            sl, r = (float(v) for v in strip.local(x, y))
+            rel = h - float(strip.heading_at(sl))
+            rr = length / 2 * abs(math.sin(rel)) + width / 2 * abs(math.cos(rel)) + margin + sweep
+            rs = length / 2 * abs(math.cos(rel)) + width / 2 * abs(math.sin(rel)) + margin + sweep
+            lo, hi = strip.s_limits()
+            if r - rr < strip.width / 2 and r + rr > -strip.width / 2 and sl + rs > lo and sl - rs < hi:
+                out.add(strip.slot)
+        return frozenset(out)
+
+    def _body_slots(self, x, y, heading, length, width, margin, dx, dy) -> frozenset:
         x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
         dx, dy = np.broadcast_to(np.asarray(dx, float), x.shape), np.broadcast_to(np.asarray(dy, float), x.shape)
         c, s = np.abs(np.cos(h)), np.abs(np.sin(h))

@@ -315,7 +315,8 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
         x, y = float(obj.position[0]), float(obj.position[1])
         slots = road.body_slots(x, y, float(obj.heading), obj.LENGTH, obj.WIDTH, BicycleEgo.LATERAL_MARGIN)
         if slots:
-            index = base.road.network.get_closest_lane_index(obj.position, obj.heading)
+            index = road.memo(("object lane", x, y, float(obj.heading)),
+                              lambda: base.road.network.get_closest_lane_index(obj.position, obj.heading))
             others.append(Car(road.longitudinal(index, x, y) + obj.LENGTH / 2, 0.0,
                               frozenset(road.itha_lane(j) for j in slots), obj.LENGTH, f"obstacle {k}", fixed=True))
     others.extend(road.end_cars())
