@@ -1,0 +1,40 @@
+"""The multi-agent table adds up runs in pieces by seed: every count summed, none dropped."""
+import importlib.util
+import pathlib
+
+import pytest
+
+_PATH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "bench_multiagent.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_multiagent", _PATH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _row(episodes, distance, collisions, at_fault, crashes=()):
+    return {"n": 2, "density": "easy", "overapprox": "ordered", "episodes": episodes, "distance_per_car": distance,
+            "lane_changes": 1, "merges": 1, "on_ramp": 2, "override_steps": 10, "collisions": collisions,
+            "at_fault": at_fault, "guarded_pairs": 0, "starts_outside": 0, "failsafe_steps": 3,
+            "unchecked_entries": 0, "crashes": list(crashes), "seconds": 1.0}
+
+
+def test_pieces_add_up_and_each_crash_keeps_the_seed_that_replays_it(bench):
+    a = {"agent": "merge", "action": "meta", "seed": 0, "rows": [_row(2, 100.0, 0, 0)]}
+    b = {"agent": "merge", "action": "meta", "seed": 2, "rows": [_row(6, 200.0, 1, 1, [{"episode": 4}])]}
+    (row,) = bench.merge([a, b])["rows"]
+    assert row["episodes"] == 8 and row["collisions"] == 1 and row["at_fault"] == 1
+    assert row["distance_per_car"] == pytest.approx((2 * 100 + 6 * 200) / 8)
+    assert row["override_steps"] == 20 and row["failsafe_steps"] == 6 and row["seeds"] == [0, 2]
+    assert row["crashes"] == [{"episode": 4, "seed": 2}]
+
+
+def test_pieces_of_other_runs_or_the_same_seed_are_refused(bench):
+    a = {"agent": "merge", "action": "meta", "seed": 0, "rows": [_row(2, 100.0, 0, 0)]}
+    with pytest.raises(SystemExit, match="different agents"):
+        bench.merge([a, dict(a, agent="random", seed=2)])
+    with pytest.raises(SystemExit, match="its own --seed"):
+        bench.merge([a, dict(a)])
