@@ -297,16 +297,12 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego:
             continue
-        x, y = float(veh.position[0]), float(veh.position[1])
-        slots = set(road.body_slots(x, y, float(veh.heading), veh.LENGTH, veh.WIDTH, BicycleEgo.LATERAL_MARGIN))
-        slots.add(road.slot_of(veh.lane_index))
-        if _is_controlled(type(veh)):
-            slots.add(road.slot_of(veh.target_lane_index))
-        front = road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2
+        front, slots, lanes = _vehicle_reading(road, veh)
         blind = blind_to(base, veh, probes)
         if blind and front >= ego_front:  # it may change into a lane beside it in front of the ego unseen
-            slots |= {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
-        lanes = frozenset(road.itha_lane(j) for j in slots) | announced.get(id(veh), frozenset())
+            slots = slots | {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
+            lanes = frozenset(road.itha_lane(j) for j in slots)
+        lanes = lanes | announced.get(id(veh), frozenset())
         others.append(Car(front, float(veh.speed), lanes, veh.LENGTH, f"car {k}", id(veh) in guarded,
                           bool(veh.crashed), blind=blind))
     for k, obj in enumerate(base.road.objects):
@@ -322,6 +318,27 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
     others.extend(road.end_cars())
     me = Car(ego_front, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego", id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
+
+
+def _vehicle_reading(road: RoadMap, veh) -> tuple:
+    """A traffic car on the map: its front along its lane's chain, the slots its body (widened as the
+    guardian widens its own) overlaps with its lane and target lane, and those slots' ITHA lanes; a function
+    of the car's pose and lanes, remembered by the map (every guarded car's scene reads every car)."""
+    from guardian.ego import BicycleEgo
+
+    x, y, heading = float(veh.position[0]), float(veh.position[1]), float(veh.heading)
+    target = veh.target_lane_index if _is_controlled(type(veh)) else None
+
+    def read():
+        slots = set(road.body_slots(x, y, heading, veh.LENGTH, veh.WIDTH, BicycleEgo.LATERAL_MARGIN))
+        slots.add(road.slot_of(veh.lane_index))
+        if target is not None:
+            slots.add(road.slot_of(target))
+        front = road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2
+        return front, frozenset(slots), frozenset(road.itha_lane(j) for j in slots)
+
+    return road.memo(("vehicle", x, y, heading, veh.LENGTH, veh.WIDTH, tuple(veh.lane_index),
+                      None if target is None else tuple(target)), read)
 
 
 def bicycle_state(vehicle, road=None) -> EgoState:
