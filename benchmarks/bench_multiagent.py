@@ -166,13 +166,15 @@ def merge(runs: list) -> dict:
     kinds = {(r["agent"], r["action"]) for r in runs}
     if len(kinds) != 1:
         raise SystemExit(f"bench_multiagent --merge: the pieces ran different agents or actions: {sorted(kinds)}")
-    seeds = [r.get("seed") for r in runs]
-    if None in seeds or len(set(seeds)) != len(seeds):
-        raise SystemExit(f"bench_multiagent --merge: each piece needs its own --seed (got {seeds})")
+    if any(r.get("seed") is None for r in runs):
+        raise SystemExit("bench_multiagent --merge: a piece has no seed (run it with --json)")
     rows: dict = {}
     for run in runs:
         for row in run["rows"]:
             key = (row["n"], row["density"], row["overapprox"])
+            if key in rows and run["seed"] in rows[key]["seeds"]:
+                raise SystemExit(f"bench_multiagent --merge: each piece of a setting needs its own --seed "
+                                 f"({key} twice with seed {run['seed']})")
             crashes = [dict(c, seed=run["seed"]) for c in row["crashes"]]
             if key not in rows:
                 rows[key] = {k: v for k, v in row.items() if k in SUMMED or k in ("n", "density", "overapprox")}

@@ -38,3 +38,5 @@ def test_pieces_of_other_runs_or_the_same_seed_are_refused(bench):
         bench.merge([a, dict(a, agent="random", seed=2)])
     with pytest.raises(SystemExit, match="its own --seed"):
         bench.merge([a, dict(a)])
+    other_n = {"agent": "merge", "action": "meta", "seed": 0, "rows": [dict(_row(2, 100.0, 0, 0), n=4)]}
+    assert len(bench.merge([a, other_n])["rows"]) == 2  # the same seed in another setting is another piece
