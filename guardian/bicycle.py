@@ -123,7 +123,8 @@ class BicycleGuardian:
             self.home = ego.lane
         self.authorized &= now - {self.home}
         if self.meta:
-            steer, occupied, entry = (steer_prop, *self._meta_lanes(ego, scene, now, d))
+            occupied, entry = self._meta_lanes(ego, scene, now, d)
+            steer = self._meta_steering(ego, occupied, steer_prop, d)
         else:
             steer, occupied, entry = self._steering(ego, scene, now, steer_prop, d)
         accel = self._accelerations(ego, scene, occupied, entry, d)
@@ -184,6 +185,26 @@ class BicycleGuardian:
                 return now | {ego.lane}, [(0.0, np.inf)]
             return now | {ego.lane, ego.target_lane}, speeds
         return now | {ego.lane, ego.target_lane}, [(0.0, np.inf)]
+
+    def _meta_steering(self, ego: EgoState, occupied: set, proposed: float, d: Decision) -> float:
+        """The controller's steering when its path (steering, then straightening) keeps the body in the
+        lanes the meta lane change holds (``occupied``); else the nearest steering whose path does. At low
+        speed highway-env's controller turns a lane change steeply, and the rotated body would reach past
+        the target lane."""
+        kin = self.kin
+        for k, steer in enumerate(kin.candidates(ego, proposed)):
+            if k > 0 and kin.turns_too_far(ego, kin.after(ego, steer)):
+                continue
+            lanes, _ = kin.path_lanes_of(ego, steer)
+            beyond = lanes - occupied
+            if not beyond:
+                return float(steer)
+            if k == 0:
+                d.note(f"steering {proposed:.3f} rad refused: the lane change's path would reach lanes "
+                       f"{sorted(self.itha_lane(i) for i in beyond)} beyond the lanes it holds")
+        d.level, d.changed = "failsafe", "failsafe"
+        d.note("failsafe: no steering keeps the body in the lanes the lane change holds; straightening")
+        return float(kin.recovery(ego))
 
     def _steering(self, ego: EgoState, scene: Scene, now: set, proposed: float, d: Decision):
         """The steering nearest to the proposal whose path enters no lane irresponsibly."""

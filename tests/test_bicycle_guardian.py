@@ -86,6 +86,23 @@ def test_a_meta_lane_change_no_longer_responsible_is_abandoned_before_the_body_c
     assert d.refused == [3] and d.changed == "lane_change"
 
 
+def test_a_slow_meta_lane_change_keeps_the_body_out_of_the_lane_beyond_its_target():
+    """Merging off a ramp at 1 m/s, highway-env's controller turns the car steeply and keeps turning: the
+    rotated body's corner would cross the far line of the target lane (found at scale: N = 4 guarded cars on
+    guardian/Merge-v0). The guardian straightens in time: the path stays in the lanes the change holds."""
+    g = _guard(dt=1 / 15, meta=True)
+    kin = g.kin
+    ego = EgoState(300.0, 5.4, -0.5, 1.0, 1, 1)  # centre in lane 1, tail still over lane 2
+    refused = 0
+    for _ in range(45):
+        applied, d = g.step(ego, _scene(ego, []), [0.0, -0.6])  # the controller keeps turning left
+        refused += applied[1] != -0.6
+        assert 3 not in d.lanes
+        ego = _bicycle(kin, ego, applied[0], applied[1])
+        assert 0 not in kin.lanes_at(ego.y, ego.heading)
+    assert refused  # left alone, the body would have crossed into lane 0
+
+
 def test_policy_level_lane_changes_are_responsible_and_self_safe():
     g = _guard(meta=True)
     ego = EgoState(100.0, 4.0, 0.0, 25.0, 1, 1)
