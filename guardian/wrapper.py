@@ -39,7 +39,7 @@ not see are counted (``unsupervised_steps``).
      "level": "composed" | "follower_dropped" | "conflict" | "failsafe",   # the worst of the step
      "reasons": [str, ...],
      "refused_lane_change": bool, "entered": [lane, ...],   # lanes begun this step (each checked, responsible)
-     "lanes": [lane, ...],            # every lane the body was allowed to overlap (held, or entered responsibly)
+     "lanes": [lane, ...],            # lanes the body was allowed to overlap (held at the step's start, or entered responsibly)
      "active_set": "aggressive" | "cautious" | "bounded_velocity" | "itha",
      "valid_intentions": [str, ...], "identified": str | None,
      "in_invariant_set": bool,         # the state lay in the composed invariant set (first simulation step)
@@ -107,6 +107,17 @@ def _action_types(base) -> list:
     if type(base.action_type).__name__ == "MultiAgentAction":
         return list(base.action_type.agents_action_types)
     return [base.action_type]
+
+
+def allowed_lanes(decisions) -> list:
+    """The lanes a car's body was allowed to overlap over one policy step: those its first decision held
+    (where the body was, and entries judged before) and every lane entered responsibly during the step.
+
+    Not the lanes of every decision: a later decision starts where the body is, so a lane the body reached
+    in between without an entry would look held (``unchecked_entries`` counts exactly those)."""
+    if not decisions:
+        return []
+    return sorted(set(decisions[0].lanes) | {lane for d in decisions for lane in d.entered})
 
 
 def _action_kind(base) -> str:
@@ -569,7 +580,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                "level": LEVELS[level],
                "reasons": reasons, "refused_lane_change": refused,
                "entered": sorted({lane for d in ds for lane in d.entered}),
-               "lanes": sorted({lane for d in ds for lane in d.lanes}),
+               "lanes": allowed_lanes(ds),
                "active_set": last.active_set if last else "itha",
                "valid_intentions": list(lead.estimator.valid) if lead else [],
                "identified": lead.identified if lead else None,

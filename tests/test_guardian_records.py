@@ -149,3 +149,18 @@ def test_applied_mean_and_range_cover_every_simulation_step_of_the_policy_step(a
                         zip(inputs.mean(axis=0), (at.acceleration_range, at.steering_range))]
                 assert np.allclose(g["applied_action"], np.clip(unit, -1, 1), atol=1e-6)
     assert spread > 0  # steps whose input changed within the policy step were among those checked
+
+
+def test_a_lane_reached_between_two_decisions_without_an_entry_is_not_allowed():
+    """The record's ``lanes`` (what ``unchecked_entries`` compares with) are the lanes held at the policy
+    step's start and the lanes entered during it, not every decision's lanes: a later decision starts where
+    the body already is."""
+    from guardian.decision import Decision
+    from guardian.wrapper import allowed_lanes
+
+    start = Decision([0.0, 0.0], [0.0, 0.0], "none", lanes=[1])
+    drifted = Decision([0.0, 0.0], [0.0, 0.0], "none", lanes=[1, 2])  # the body is over lane 2 now, unjudged
+    assert allowed_lanes([start, drifted]) == [1]
+    entering = Decision([0.0, 0.0], [0.0, 0.0], "none", entered=[2], lanes=[1, 2])
+    assert allowed_lanes([start, entering, drifted]) == [1, 2]
+    assert allowed_lanes([]) == []
