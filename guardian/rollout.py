@@ -455,9 +455,9 @@ class HighwayTally(Observer):
         * ``safety_violations``: steps ending outside the safe set (6.8) (HighwayOvertake) or with no
           self-safe input left (highway-env roads; per guarded car), with or without the guardian.
         * ``unchecked_entries``: lanes a guarded car's body began to overlap in a step whose record lists the
-          lane neither among the lanes the guardian held the car in nor among the entries it checked and
-          found responsible (on roads beyond one straight segment: slots of ``guardian.roads``, the body
-          unwidened).
+          lane neither among the lanes the guardian held the car in at the step's start nor among the
+          entries it checked and found responsible during the step (``guardian.wrapper.allowed_lanes``; on
+          roads beyond one straight segment: slots of ``guardian.roads``, the body unwidened).
         * ``traffic_blind_steps``: policy steps in which some traffic car did not see a guarded car its
           model has it react to (``guardian.monitor.traffic_blind_to``: highway-env's v0 roads search one
           lane segment; per guarded car); each crash row's ``steps_since_traffic_blind`` counts the policy
