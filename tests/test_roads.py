@@ -160,3 +160,19 @@ def test_outline_is_the_corners_and_side_midpoints():
     xs, ys = outline([0.0], [0.0], [0.0], 4.0, 2.0)
     assert sorted(zip(xs[0].round(9), ys[0].round(9))) == sorted(
         [(2, 1), (2, -1), (-2, 1), (-2, -1), (2, 0), (-2, 0), (0, 1), (0, -1)])
+
+
+@pytest.mark.parametrize("env_id", ["merge-v0", "exit-v0"])
+def test_one_body_is_read_as_the_array_path_reads_it(env_id):
+    """``body_slots`` answers one body in float arithmetic (and from a memo); it must give the array path's
+    slots, corners and sweeps included."""
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    road = read_road(env.unwrapped)
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        x, y, h = float(rng.uniform(-50, 600)), float(rng.uniform(-5, 30)), float(rng.normal(0, 0.5))
+        margin, dx, dy = float(rng.choice([0.0, 0.3])), float(rng.uniform(-1, 3)), float(rng.uniform(-1, 1))
+        one = road.body_slots(x, y, h, 5.0, 2.0, margin, dx, dy)
+        assert one == road.body_slots(np.array([x]), np.array([y]), np.array([h]), 5.0, 2.0, margin, dx, dy)
+        assert one == road.body_slots(x, y, h, 5.0, 2.0, margin, dx, dy)  # the memo's answer
