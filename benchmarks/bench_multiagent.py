@@ -68,7 +68,7 @@ def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: i
             "at_fault": r["ego_at_fault_collisions"] + r["ego_at_fault_after_outside_starts"],
             "guarded_pairs": r["guarded_pair_collisions"], "starts_outside": r["starts_outside"],
             "failsafe_steps": r["failsafe_steps"], "unchecked_entries": r["unchecked_entries"],
-            "crashes": r["crashes"]}
+            "reversing_uncovered": r["traffic_reversing_uncovered_steps"], "crashes": r["crashes"]}
 
 
 def cost(n: int, density: str, overapprox: str, episodes: int, seed: int, agent: str, action: str) -> dict:
@@ -155,7 +155,7 @@ def main(argv=None) -> int:
 
 
 SUMMED = ("episodes", "lane_changes", "merges", "on_ramp", "override_steps", "collisions", "at_fault", "guarded_pairs",
-          "starts_outside", "failsafe_steps", "unchecked_entries", "seconds")
+          "starts_outside", "failsafe_steps", "unchecked_entries", "reversing_uncovered", "seconds")
 
 
 def merge(runs: list) -> dict:
@@ -182,8 +182,11 @@ def merge(runs: list) -> dict:
                                  seeds=[run["seed"]])
                 continue
             total = rows[key]
-            for k in SUMMED:
-                total[k] = round(total[k] + row[k], 1) if k == "seconds" else total[k] + row[k]
+            for k in SUMMED:  # None: not measured (unguarded rows have no guardian to count unchecked entries)
+                if total[k] is None or row[k] is None:
+                    total[k] = None
+                else:
+                    total[k] = round(total[k] + row[k], 1) if k == "seconds" else total[k] + row[k]
             total["distance_per_car"] += row["distance_per_car"] * row["episodes"]
             total["crashes"] += crashes
             total["seeds"].append(run["seed"])

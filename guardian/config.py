@@ -7,6 +7,7 @@ from guardian.errors import ConfigError
 
 CONFLICT_CHOICES = ("lead", "traffic")
 OVERAPPROXIMATIONS = ("trivial", "ordered")
+REVERSE_REACH = 8.0   # [m] GuardianConfig.reverse_reach's default
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,13 @@ class GuardianConfig:
         [m] how far an impact may push a car back beyond where it stands still: the guardian keeps
         this much more room behind a car at risk of a crash (``guardian.traffic``; docs/guardian.md
         "Wrecks" has the measurement behind the default).
+    reverse_reach : float
+        [m] how far a car seen driving backwards may still back up: highway-env lets traffic reverse
+        (``Vehicle.MIN_SPEED = -40``; IDM brakes into reverse when it stands inside its desired gap), which
+        the traffic model (speeds in ``[0, v_max]``) does not. The guardian takes a reversing car's rear
+        this much further back and the car into the lanes beside its own (its steering swings a reversing
+        body); a reversal that goes further is counted (``guardian.monitor``; docs/guardian.md "Reversing
+        traffic" has the measurement behind the default).
     overapprox : str
         ``trivial`` (highway-env traffic announces no lane change) or ``ordered``.
     use_intention : bool
@@ -48,6 +56,7 @@ class GuardianConfig:
     v_max: float = 40.0
     traffic_accel: float = 6.0
     wreck_margin: float = 1.0
+    reverse_reach: float = REVERSE_REACH
     overapprox: str = "trivial"
     use_intention: bool = True
     horizon: int = 10
@@ -64,8 +73,9 @@ class GuardianConfig:
         for name in ("h_min", "v_max", "traffic_accel"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"GuardianConfig.{name} must be positive, got {getattr(self, name)!r}")
-        if not (self.wreck_margin >= 0 and self.wreck_margin < float("inf")):
-            raise ConfigError(f"GuardianConfig.wreck_margin must be finite and >= 0, got {self.wreck_margin!r}")
+        for name in ("wreck_margin", "reverse_reach"):
+            if not (getattr(self, name) >= 0 and getattr(self, name) < float("inf")):
+                raise ConfigError(f"GuardianConfig.{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not self.override_penalty >= 0:
             raise ConfigError(f"GuardianConfig.override_penalty must be >= 0, got {self.override_penalty!r}")
         if self.horizon < 1 or self.start_attempts < 1:

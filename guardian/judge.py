@@ -19,7 +19,10 @@ simulators whose crash is flagged after it) are judged on the bodies after the p
 A crash with no other crashed vehicle (an obstacle, the road's edge) is the ego's. When in doubt the
 rules count against the ego (ties go to the ego).
 
-The partner is the vehicle whose crash began in the same step and which is nearest to the ego.
+The partner is the vehicle whose crash began in the same step and which is nearest to the ego; when
+there is none, the nearest vehicle that had crashed before and whose body overlapped the ego's when the
+ego's crash began, or was about to by highway-env's own test (a wreck that backs or slides into the ego,
+or that the ego drives into).
 Lanes are the road's straight lanes (``guardian.sensing.Road``); a body overlaps a lane when its
 lateral extent (heading included) enters the lane's strip.
 
@@ -119,6 +122,18 @@ class Lines:
         return float(lane.heading_at(s))
 
 
+def _touch(a, b, dt: float) -> bool:
+    """Do the bodies of ``a`` and ``b`` overlap, now or over one more simulation step of ``dt`` at their
+    velocities? (highway-env's own test for a crash: a body about to overlap is pushed back and flagged.)"""
+    from highway_env import utils
+
+    reach = (abs(float(a.speed)) + abs(float(b.speed))) * dt
+    if math.dist(a.position, b.position) > (a.diagonal + b.diagonal) / 2 + reach:
+        return False
+    now, soon, _ = utils.are_polygons_intersecting(a.polygon(), b.polygon(), a.velocity * dt, b.velocity * dt)
+    return bool(now or soon)
+
+
 class FaultJudge:
     """Watches one episode; ``observe`` after every step returns the ego's new ``Crash`` or None
     (``observe_all``: every guarded car's).
@@ -185,9 +200,10 @@ class FaultJudge:
         self.since_seen += dt
         for v in road.vehicles:
             if v.crashed and id(v) not in self.crashed and id(v) not in self.contact:
+                wrecks = [o for o in road.vehicles if o is not v and id(o) in self.crashed and _touch(v, o, dt)]
                 self.contact[id(v)] = {"lanes": self.body_lanes_of(v), "speed": float(v.speed),
                                        "position": (float(v.position[0]), float(v.position[1])),
-                                       "seconds": self.since_seen}
+                                       "seconds": self.since_seen, "wrecks": wrecks}
 
     def _at_contact(self, v) -> dict | None:
         """``v``'s body when its crash began, if that was in the step being observed."""
@@ -236,10 +252,12 @@ class FaultJudge:
         for i, car in enumerate(self.guarded):
             if not any(v is car for v in newly) or id(car) in judged:
                 continue
-            partners = [v for v in newly if v is not car]
+            partners = [v for v in newly if v is not car] or (contact[id(car)] or {}).get("wrecks", [])
             if not partners:
                 out.append(Crash(self.t, "ego", "alone", car=i))
                 continue
+            for v in partners:
+                speed.setdefault(id(v), float(v.speed))
             other = min(partners, key=lambda o: math.dist(self.pos[id(o)], self.pos[id(car)]))
             crash = self._fault(car, other, base, span[id(car)], speed)
             crash.car = i

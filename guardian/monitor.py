@@ -21,6 +21,10 @@ transitions the model does not cover:
   the car's own lane segment only, so near a segment's end a car may not see the guarded car on the
   next segment. A step counts when some traffic car's search, in its lane or a lane beside it, misses
   the guarded car that highway-env's connected-lane search (merge-v1, exit-v1) finds.
+* traffic that backs up further than the guardian's cover (``traffic_reversing_uncovered``): a car seen
+  driving backwards is covered ``reverse_reach`` metres further back (``GuardianConfig.reverse_reach``);
+  a step counts when some traffic car has backed up more than that since it began to reverse (the
+  distance it covered at negative speed, ``dt |v|`` per step, summed until its speed is back at 0 or above).
 
 With several guarded cars each has its own monitor (``observe(..., ego=vehicle)``); only one of them
 counts the traffic (``watch_traffic``), so that sums over the cars count each car once.
@@ -29,8 +33,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from guardian.config import REVERSE_REACH
+
 TOL = 1e-6
-COUNTS = ("ego", "lead", "traffic", "traffic_blind")  # what ``observe`` returns, per simulation step
+COUNTS = ("ego", "lead", "traffic", "traffic_blind", "traffic_reversing_uncovered")  # per simulation step
 
 
 def no_counts() -> dict:
@@ -39,8 +45,10 @@ def no_counts() -> dict:
 
 class ModelMonitor:
     def __init__(self, dt: float, d_bounds: tuple, v_max: float, overtake_params=None, intention_models=None,
-                 ego_kinematics=None, ego_stops_at_zero: bool = False, watch_traffic: bool = True):
+                 ego_kinematics=None, ego_stops_at_zero: bool = False, watch_traffic: bool = True,
+                 reverse_reach: float = REVERSE_REACH):
         self.dt, self.d_bounds, self.v_max = dt, d_bounds, v_max
+        self.reverse_reach = reverse_reach
         self.watch_traffic = watch_traffic
         self.ego_stops_at_zero = ego_stops_at_zero
         self.p = overtake_params
@@ -50,6 +58,7 @@ class ModelMonitor:
 
     def reset(self) -> None:
         self._prev = None
+        self._backed = {}   # id(traffic car) -> metres it has backed up since it began to reverse
         self.totals = no_counts()
         self.worst = {"traffic_progress_shortfall_m": 0.0, "traffic_braking_excess": 0.0}
 
@@ -92,11 +101,21 @@ class ModelMonitor:
             fits = (np.abs(x1 - x0 - dt * v0) <= TOL) & (lo - TOL <= a) & (a <= hi + TOL) & \
                 (-TOL <= v1) & (v1 <= self.v_max + TOL)
             counts["traffic"] = int(np.count_nonzero(~fits))
+            counts["traffic_reversing_uncovered"] = self._reversals(ids0[i0], v0)
         if "x" in prev:
             counts["ego"], counts["lead"] = self._overtake(prev["x"], prev["applied"], now["x"])
         else:
             counts["ego"] = int(not self._bicycle_fits(prev, now))
         return counts
+
+    def _reversals(self, ids, v0) -> int:
+        """1 when some car (``ids``, speeds ``v0`` over the step just ended) has now backed up further than
+        ``reverse_reach`` in one reversal; a reversal ends at a step begun at speed 0 or above."""
+        backed = {}
+        for k in np.flatnonzero(v0 < 0):
+            backed[int(ids[k])] = self._backed.get(int(ids[k]), 0.0) - self.dt * float(v0[k])
+        self._backed = backed
+        return int(any(b > self.reverse_reach + TOL for b in backed.values()))
 
     def overtake_transition(self, x, u, x1) -> tuple[int, int]:
         """``(ego, lead)`` violations of one overtake transition ``x -> x1`` under input ``u`` (0 or 1 each)."""

@@ -229,7 +229,8 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
 COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
           "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
           "override_steps", "model_clip_steps", "refused_lane_changes", "clipped_sim_steps", "lane_changes",
-          "model_violation_steps", "traffic_model_violation_steps", "traffic_blind_steps", "follower_dropped_steps",
+          "model_violation_steps", "traffic_model_violation_steps", "traffic_blind_steps",
+          "traffic_reversing_uncovered_steps", "follower_dropped_steps",
           "conflict_steps",
           "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments")
 MULTI_COUNTS = ("guarded_pair_collisions", "merges", "on_ending_lane")
@@ -462,6 +463,8 @@ class HighwayTally(Observer):
           model has it react to (``guardian.monitor.traffic_blind_to``: highway-env's v0 roads search one
           lane segment; per guarded car); each crash row's ``steps_since_traffic_blind`` counts the policy
           steps since the crashed car's last such step (None: none this episode). Guarded runs only.
+        * ``traffic_reversing_uncovered_steps``: policy steps in which some traffic car had backed up further
+          than the guardian covers (``GuardianConfig.reverse_reach``; ``guardian.monitor``). Guarded runs only.
         * ``reversing_steps``: steps ending with a negative speed (per guarded car). ``unsupervised_steps``:
           simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
           guardian found the ego reset or replaced behind its back.
@@ -481,7 +484,8 @@ class HighwayTally(Observer):
         totals["episodes"] = episodes
         totals["distance_mean"] = self.distance / episodes
         if not self.guardian:  # measured only by the guardian's monitor (and, on HighwayOvertake, from the env)
-            totals["traffic_model_violation_steps"] = totals["traffic_blind_steps"] = None
+            for k in ("traffic_model_violation_steps", "traffic_blind_steps", "traffic_reversing_uncovered_steps"):
+                totals[k] = None
             if not self.overtake:
                 totals["model_violation_steps"] = None
             for k in ("unchecked_entries", "unsupervised_steps", "reattachments"):
@@ -511,7 +515,7 @@ class _SelfSafetyCheck:
 
         c = GuardianConfig()
         self.dt = 1.0 / base.config["simulation_frequency"]
-        self.road, self.accel = road, c.traffic_accel
+        self.road, self.accel, self.reverse_reach = road, c.traffic_accel, c.reverse_reach
         self.car = base.vehicle if car is None else car
         self.guarded = frozenset(id(v) for v in guarded_cars(base)) if multi else frozenset()
         self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
@@ -530,7 +534,8 @@ class _SelfSafetyCheck:
                                          ego.LENGTH, ego.WIDTH) or {self.road.slot_of(ego.lane_index)}
         else:
             lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
-        scene = road_scene(base, self.road, {self.road.itha_lane(i) for i in lanes}, ego=ego, guarded=self.guarded)
+        scene = road_scene(base, self.road, {self.road.itha_lane(i) for i in lanes}, ego=ego, guarded=self.guarded,
+                           reverse_reach=self.reverse_reach)
         speeds, _ = self.traffic.self_safe_speeds(scene)
         v, reach = float(ego.speed), self.accel * self.dt
         return any(max(lo, v - reach) <= min(hi, v + reach) for lo, hi in speeds)
@@ -547,6 +552,7 @@ def _count_step(totals: dict, g: dict | None) -> None:
     totals["model_violation_steps"] += int(mv["ego"] + mv["lead"] > 0)
     totals["traffic_model_violation_steps"] += int(mv["traffic"] > 0)
     totals["traffic_blind_steps"] += int(mv["traffic_blind"] > 0)
+    totals["traffic_reversing_uncovered_steps"] += int(mv["traffic_reversing_uncovered"] > 0)
     for k in ("follower_dropped_steps", "conflict_steps", "failsafe_steps", "unsupervised_steps"):
         totals[k] += g[k]
 

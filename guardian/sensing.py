@@ -23,6 +23,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.controller import ControlledVehicle
 
 from guardian.bicycle import EgoState
+from guardian.config import REVERSE_REACH
 from guardian.errors import ConfigError
 from guardian.roads import RoadMap, Strip
 from guardian.scene import Car, Scene
@@ -211,7 +212,8 @@ def _strip(lane, w: float, slot: int, s0: float, open_before: bool, open_after: 
     return Strip("straight", start, end, w, float(lane.length), slot, s0, open_before=open_before, open_after=open_after)
 
 
-def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(), announced=None) -> Scene:
+def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(), announced=None,
+               reverse_reach: float = REVERSE_REACH) -> Scene:
     """The road as ITHA agents: the ego (in ITHA ``ego_lanes``) and every car but the overtake lead.
 
     A car changing lanes (``lane_index != target_lane_index``) occupies both. ``ego`` is the guarded car
@@ -222,27 +224,31 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
     ``announced`` maps a guarded car's id to the ITHA lanes it announced it enters this step. On a
     ``RoadMap`` fronts are along the lanes' chains, obstacles are standing cars and each dead end is a
     standing car of length 0 (``guardian.roads``).
+
+    A car driving backwards (outside the traffic model) is taken ``reverse_reach`` metres longer at its rear
+    (how far it may still back up) and in the lanes beside its own too (its steering swings a reversing
+    body): ``GuardianConfig.reverse_reach``.
     """
     ego = base.vehicle if ego is None else ego
     announced = announced or {}
     if isinstance(road, RoadMap):
-        return _map_scene(base, road, ego, ego_lanes, guarded, announced)
+        return _map_scene(base, road, ego, ego_lanes, guarded, announced, reverse_reach)
     lead = getattr(base, "lead", None)
     others = []
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego or veh is lead:
             continue
         lane = veh.lane_index[2]
-        if not guarded:
-            target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
-            others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed),
-                              _itha_lanes(road.n_lanes, lane, target), veh.LENGTH, f"car {k}",
-                              crashed=bool(veh.crashed)))
-            continue
         target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
-        lanes = _itha_lanes(road.n_lanes, lane, target) | frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road))
-        lanes = lanes | announced.get(id(veh), frozenset())
-        others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, veh.LENGTH, f"car {k}",
+        lanes = _itha_lanes(road.n_lanes, lane, target)
+        if guarded:
+            lanes = lanes | frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road))
+            lanes = lanes | announced.get(id(veh), frozenset())
+        length = veh.LENGTH
+        if veh.speed < 0:
+            lanes = lanes | frozenset(j + s for j in lanes for s in (-1, 1) if 1 <= j + s <= road.n_lanes)
+            length += reverse_reach
+        others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, length, f"car {k}",
                           id(veh) in guarded, bool(veh.crashed)))
     me = Car(float(ego.position[0]) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego",
              id(ego) in guarded)
@@ -288,7 +294,7 @@ def blind_to(base, veh, probes) -> bool:
     return not all(any(lane.on_lane(pos, margin=BLIND_MARGIN) for lane in lanes) for pos in probes)
 
 
-def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene:
+def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_reach: float) -> Scene:
     from guardian.ego import BicycleEgo
 
     others = []
@@ -299,11 +305,14 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced) -> Scene
             continue
         front, slots, lanes = _vehicle_reading(road, veh)
         blind = blind_to(base, veh, probes)
-        if blind and front >= ego_front:  # it may change into a lane beside it in front of the ego unseen
+        reversing = veh.speed < 0
+        # blind: it may change into a lane beside it in front of the ego unseen; reversing: its body swings
+        if (blind and front >= ego_front) or reversing:
             slots = slots | {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
             lanes = frozenset(road.itha_lane(j) for j in slots)
         lanes = lanes | announced.get(id(veh), frozenset())
-        others.append(Car(front, float(veh.speed), lanes, veh.LENGTH, f"car {k}", id(veh) in guarded,
+        length = veh.LENGTH + (reverse_reach if reversing else 0.0)
+        others.append(Car(front, float(veh.speed), lanes, length, f"car {k}", id(veh) in guarded,
                           bool(veh.crashed), blind=blind))
     for k, obj in enumerate(base.road.objects):
         if not (getattr(obj, "solid", True) and getattr(obj, "collidable", True)):

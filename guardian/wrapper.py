@@ -47,7 +47,7 @@ not see are counted (``unsupervised_steps``).
      "follower_dropped_steps": int, "conflict_steps": int,
      "failsafe_steps": int, "unsupervised_steps": int, "reattached": bool,
      "model_violations": {"ego": int, "lead": int, "traffic": int,   # simulation steps (guardian.monitor)
-                          "traffic_blind": int},
+                          "traffic_blind": int, "traffic_reversing_uncovered": int},
      "admissible_acceleration": [[lo, hi], ...],   # at the applied lateral input, last simulation step
      "admissible_lateral": [[lo, hi], ...]}        # at the applied acceleration (overtake scenarios)
 
@@ -67,8 +67,10 @@ With several guarded cars ``info["guardian"]`` is::
      "sim_steps": int,                    # the policy step's simulation steps
      "clipped_steps", "model_clip_steps", "follower_dropped_steps", "conflict_steps", "failsafe_steps",
      "unsupervised_steps": int,           # summed over the cars
-     "model_violations": {"ego": int, "lead": 0, "traffic": int, "traffic_blind": int}}
-                                          # summed (traffic: car 0's monitor; traffic_blind: each car's)
+     "model_violations": {"ego": int, "lead": 0, "traffic": int, "traffic_blind": int,
+                          "traffic_reversing_uncovered": int}}
+                                          # summed (traffic, traffic_reversing_uncovered: car 0's monitor;
+                                          # traffic_blind: each car's)
 
 (``"penalty"`` is the penalty times the number of cars overridden for safety), and at reset
 ``{"enabled", "scenario", "action", "controlled", "start_inside" (all cars), "agents_start_inside",
@@ -245,7 +247,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     raise ConfigError(f"Guardian: {exc}") from None
                 self.monitor = ModelMonitor(self.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, p,
                                             {n: self.library.models[n] for n in ("aggressive", "cautious")},
-                                            ego_stops_at_zero=True)
+                                            ego_stops_at_zero=True, reverse_reach=c.reverse_reach)
                 self._guards = [(self.guard, self.monitor)]
         elif base.vehicle is not None:
             ego = base.vehicle
@@ -265,7 +267,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                          self.road.n_lanes, max_steer)
                     guard = BicycleGuardian(kin, c, meta=self.kind == "DiscreteMetaAction")
                     monitor = ModelMonitor(self.dt, (-c.traffic_accel, c.traffic_accel), c.v_max,
-                                           ego_kinematics=kin, watch_traffic=i == 0)
+                                           ego_kinematics=kin, watch_traffic=i == 0, reverse_reach=c.reverse_reach)
                     self._guards.append((guard, monitor))
                 self.guard, self.monitor = self._guards[0]
         else:
@@ -312,13 +314,15 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """Per guarded car: does its start lie in its invariant sets?"""
         base = self.env.unwrapped
         if self.scenario == "overtake":
-            return [bool(self.guard.inside(base.overtake_state(), road_scene(base, self.road)))]
+            scene = road_scene(base, self.road, reverse_reach=self.config.reverse_reach)
+            return [bool(self.guard.inside(base.overtake_state(), scene))]
         out = []
         for car in self.cars:
             state = bicycle_state(car.vehicle, self.road)
             kin = car.guard.kin
             lanes = {self.road.itha_lane(i) for i in (set(kin.body_lanes(state)) or {state.lane})}
-            scene = road_scene(base, self.road, lanes, ego=car.vehicle, guarded=self._guarded)
+            scene = road_scene(base, self.road, lanes, ego=car.vehicle, guarded=self._guarded,
+                               reverse_reach=self.config.reverse_reach)
             speeds, _ = car.guard.traffic.self_safe_speeds(scene)
             out.append(bool(kin.accel_for_speeds(state.speed, speeds)))
         return out
@@ -421,7 +425,8 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     continue
                 state = bicycle_state(car.vehicle, self.road)
                 target = state.lane + (-1 if proposed[i] == "LANE_LEFT" else 1)
-                scene = road_scene(base, self.road, ego=car.vehicle, guarded=self._guarded, announced=announced)
+                scene = road_scene(base, self.road, ego=car.vehicle, guarded=self._guarded, announced=announced,
+                                   reverse_reach=self.config.reverse_reach)
                 ok, reason = car.guard.policy_lane_change(state, scene, target)
                 if not ok:
                     car.refused_meta = f"lane change refused: {reason}"
@@ -483,7 +488,8 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _supervise_overtake(self, base, ego):
         u = ego.input.copy()
-        applied, decision = self.guard.step(base.overtake_state(), road_scene(base, self.road), u)
+        scene = road_scene(base, self.road, reverse_reach=self.config.reverse_reach)
+        applied, decision = self.guard.step(base.overtake_state(), scene, u)
         ego.action = {"acceleration": float(applied[0]), "steering": float(applied[1])}
         if decision.refused and ego.meta is not None:
             ego.keep_lane()  # a meta agent's lane change is abandoned
@@ -493,7 +499,8 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ego = car.vehicle
         proposed = (float(ego.action["acceleration"]), float(ego.action["steering"]))
         state = bicycle_state(ego, self.road)
-        scene = road_scene(base, self.road, ego=ego, guarded=self._guarded, announced=announced)
+        scene = road_scene(base, self.road, ego=ego, guarded=self._guarded, announced=announced,
+                           reverse_reach=self.config.reverse_reach)
         applied, decision = car.guard.step(state, scene, proposed)
         if decision.refused and self.kind == "DiscreteMetaAction":
             ego.target_lane_index = ego.lane_index  # abandon the lane change, steer back

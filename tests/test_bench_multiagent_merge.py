@@ -19,7 +19,7 @@ def _row(episodes, distance, collisions, at_fault, crashes=()):
     return {"n": 2, "density": "easy", "overapprox": "ordered", "episodes": episodes, "distance_per_car": distance,
             "lane_changes": 1, "merges": 1, "on_ramp": 2, "override_steps": 10, "collisions": collisions,
             "at_fault": at_fault, "guarded_pairs": 0, "starts_outside": 0, "failsafe_steps": 3,
-            "unchecked_entries": 0, "crashes": list(crashes), "seconds": 1.0}
+            "unchecked_entries": 0, "reversing_uncovered": 0, "crashes": list(crashes), "seconds": 1.0}
 
 
 def test_pieces_add_up_and_each_crash_keeps_the_seed_that_replays_it(bench):

@@ -163,11 +163,13 @@ def test_the_model_monitor_catches_a_transition_the_model_does_not_cover():
     base.vehicle.act({"acceleration": 0.0, "steering": 0.0})
     mon.observe(base, u)
     env.step(np.zeros(2))
-    assert mon.observe(base, u) == {"ego": 0, "lead": 0, "traffic": 0, "traffic_blind": 0}
+    assert mon.observe(base, u) == {"ego": 0, "lead": 0, "traffic": 0, "traffic_blind": 0,
+                                    "traffic_reversing_uncovered": 0}
     env.step(np.zeros(2))
     base.lead.speed -= 0.5          # the lead brakes harder than any intention allows
     base.road.vehicles[2].position[0] -= 1.0  # a traffic car jumps back
-    assert mon.observe(base, u) == {"ego": 0, "lead": 1, "traffic": 1, "traffic_blind": 0}
+    assert mon.observe(base, u) == {"ego": 0, "lead": 1, "traffic": 1, "traffic_blind": 0,
+                                    "traffic_reversing_uncovered": 0}
 
 
 def test_the_ego_stops_at_standstill_and_the_monitor_knows_it():

@@ -318,3 +318,55 @@ def test_the_judge_of_the_current_episode_hears_the_road_once():
     second.start(base)  # a new episode on the same road object: the step is wrapped once, for the new judge
     road.step(0.5)
     assert (first.since_seen, second.since_seen) == (0.0, 0.5)
+
+
+class _Body(Car):
+    """A hand-built car with highway-env's body (its polygon and velocity), for the contact test."""
+
+    diagonal = float(np.hypot(Car.LENGTH, Car.WIDTH))
+
+    @property
+    def velocity(self):
+        return self.speed * np.array([np.cos(self.heading), np.sin(self.heading)])
+
+    def polygon(self):
+        from highway_env.vehicle.kinematics import Vehicle
+
+        return Vehicle.polygon(self)
+
+
+def _wreck_then(move):
+    """Two cars crash in one policy step (the wreck, ahead of the ego, and a third car); in the next, ``move``
+    brings the wreck and the standing ego into contact, and the ego's crash begins."""
+    ego, wreck, third = _Body(0.0, 0.0, speed=0.0), _Body(6.5, 0.0, speed=-1.0), _Body(6.5, LANE, speed=0.0)
+    road = _SteppedRoad([ego, wreck, third], [])
+    base = SimpleNamespace(vehicle=ego, road=road)
+    j = FaultJudge(LANE, 3, dt=1.0)
+    j.start(base)
+    road.frames = [lambda c: [setattr(v, "crashed", True) for v in (wreck, third)]]
+    _policy_step(base, 1, 1.0)
+    first = j.observe_all(base)
+    assert first == []  # no guarded car crashed yet
+    road.frames = [lambda c: move(ego, wreck), lambda c: setattr(ego, "crashed", True)]
+    _policy_step(base, 2, 0.5)
+    return j.observe_all(base)
+
+
+def test_a_wreck_backing_into_a_standing_ego_is_the_wrecks_fault():
+    """The partner crashed a step earlier: the ego's crash is still judged against it, not as 'alone'."""
+    (crash,) = _wreck_then(lambda ego, wreck: wreck.position.__setitem__(0, 4.9))
+    assert (crash.fault, crash.rule, crash.partner) == ("other", "rear_end", "car 1"), crash
+
+
+def test_driving_into_a_standing_wreck_is_the_egos_fault():
+    def drive_in(ego, wreck):
+        wreck.speed, ego.speed = 0.0, 3.0
+        ego.position[0] = 1.6
+
+    (crash,) = _wreck_then(drive_in)
+    assert (crash.fault, crash.rule, crash.partner) == ("ego", "rear_end", "car 1"), crash
+
+
+def test_a_wreck_the_ego_does_not_touch_is_not_its_partner():
+    (crash,) = _wreck_then(lambda ego, wreck: None)   # the ego's crash began with nothing touching it
+    assert (crash.fault, crash.rule) == ("ego", "alone"), crash
