@@ -63,7 +63,8 @@ MULTI_SETTINGS = tuple((f"{n} guarded, {traffic}", n, {"traffic": traffic, "dura
 MULTI_AGENTS = ("random", "reckless", "merge")
 COUNTED = ("collisions", "ego_at_fault_collisions", "starts_outside", "collisions_after_outside_starts",
            "ego_at_fault_after_outside_starts", "safety_violations", "failsafe_steps", "conflict_steps",
-           "unchecked_entries", "reversing_steps", "unsupervised_steps", "override_steps", "steps")
+           "unchecked_entries", "reversing_steps", "unsupervised_steps", "traffic_reversing_uncovered_steps",
+           "override_steps", "steps")
 
 
 @dataclass(frozen=True)

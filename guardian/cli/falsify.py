@@ -9,7 +9,8 @@ COLUMNS = (("episodes", "episodes"), ("collisions", "collisions"), ("ego_at_faul
            ("starts_outside", "starts outside"), ("ego_at_fault_after_outside_starts", "at fault after outside"),
            ("safety_violations", "exits"), ("failsafe_steps", "fail-safe steps"),
            ("unchecked_entries", "unchecked entries"), ("reversing_steps", "reversing steps"),
-           ("unsupervised_steps", "unsupervised"), ("exceptions", "exceptions"))
+           ("unsupervised_steps", "unsupervised"), ("traffic_reversing_uncovered_steps", "uncovered reversals"),
+           ("exceptions", "exceptions"))
 
 
 def table(rows: list, title: str) -> str:
