@@ -21,10 +21,12 @@ transitions the model does not cover:
   the car's own lane segment only, so near a segment's end a car may not see the guarded car on the
   next segment. A step counts when some traffic car's search, in its lane or a lane beside it, misses
   the guarded car that highway-env's connected-lane search (merge-v1, exit-v1) finds.
-* traffic that backs up further than the guardian's cover (``traffic_reversing_uncovered``): a car seen
-  driving backwards is covered ``reverse_reach`` metres further back (``GuardianConfig.reverse_reach``);
-  a step counts when some traffic car has backed up more than that since it began to reverse (the
-  distance it covered at negative speed, ``dt |v|`` per step, summed until its speed is back at 0 or above).
+* traffic that backs up further than the guardian's cover (``traffic_reversing_uncovered``): at each
+  simulation step the guardian takes a car seen driving backwards to stay ahead of ``x - reach`` from
+  then on, ``reach`` by ``guardian.sensing.reverse_reaches`` (``GuardianConfig.reverse_reach``, more behind
+  a car that reverses too; here cars follow each other on highway-env's lane index); a step counts when
+  some car is behind the furthest-forward of the bounds given since its reversal began (it ends at a step
+  seen at speed 0 or above).
 
 With several guarded cars each has its own monitor (``observe(..., ego=vehicle)``); only one of them
 counts the traffic (``watch_traffic``), so that sums over the cars count each car once.
@@ -58,7 +60,8 @@ class ModelMonitor:
 
     def reset(self) -> None:
         self._prev = None
-        self._backed = {}   # id(traffic car) -> metres it has backed up since it began to reverse
+        self._bound = {}    # id(reversing traffic car) -> the x it was taken to stay ahead of (furthest forward)
+        self._uncovered = 0
         self.totals = no_counts()
         self.worst = {"traffic_progress_shortfall_m": 0.0, "traffic_braking_excess": 0.0}
 
@@ -69,6 +72,8 @@ class ModelMonitor:
         ids = np.fromiter((id(v) for v in others), dtype=np.int64, count=len(others))
         x_v = np.fromiter((c for v in others for c in (v.position[0], v.speed)), dtype=float,
                           count=2 * len(others)).reshape(-1, 2)
+        if self.watch_traffic:
+            self._reversal_step(others, x_v)
         snap = {"traffic": (ids, x_v), "applied": np.asarray(applied, float),
                 "ego": (float(ego.position[0]), float(ego.speed), float(ego.heading))}
         if lead is not None:
@@ -80,6 +85,7 @@ class ModelMonitor:
         ``ego``: the guarded car this monitor watches (default: the env's ego)."""
         now = self._snapshot(base, applied, ego)
         counts = self._compare(self._prev, now) if self._prev is not None else no_counts()
+        counts["traffic_reversing_uncovered"] = self._uncovered
         counts["traffic_blind"] = int(traffic_blind_to(base.road, base.vehicle if ego is None else ego))
         for k, n in counts.items():
             self.totals[k] += n
@@ -101,21 +107,28 @@ class ModelMonitor:
             fits = (np.abs(x1 - x0 - dt * v0) <= TOL) & (lo - TOL <= a) & (a <= hi + TOL) & \
                 (-TOL <= v1) & (v1 <= self.v_max + TOL)
             counts["traffic"] = int(np.count_nonzero(~fits))
-            counts["traffic_reversing_uncovered"] = self._reversals(ids0[i0], v0)
         if "x" in prev:
             counts["ego"], counts["lead"] = self._overtake(prev["x"], prev["applied"], now["x"])
         else:
             counts["ego"] = int(not self._bicycle_fits(prev, now))
         return counts
 
-    def _reversals(self, ids, v0) -> int:
-        """1 when some car (``ids``, speeds ``v0`` over the step just ended) has now backed up further than
-        ``reverse_reach`` in one reversal; a reversal ends at a step begun at speed 0 or above."""
-        backed = {}
-        for k in np.flatnonzero(v0 < 0):
-            backed[int(ids[k])] = self._backed.get(int(ids[k]), 0.0) - self.dt * float(v0[k])
-        self._backed = backed
-        return int(any(b > self.reverse_reach + TOL for b in backed.values()))
+    def _reversal_step(self, cars, x_v) -> None:
+        """Keep each reversing car's bound; ``_uncovered``: 1 when some car is now behind its bound."""
+        from guardian.sensing import reverse_reaches
+
+        self._uncovered = 0
+        if not np.any(x_v[:, 1] < 0):
+            self._bound = {}
+            return
+        reach = reverse_reaches(x_v[:, 0].tolist(), x_v[:, 1].tolist(), [tuple(v.lane_index or ()) for v in cars],
+                                self.reverse_reach)
+        bound = {}
+        for v, (x, speed), r in zip(cars, x_v, reach):
+            if speed < 0:
+                b = bound[id(v)] = max(self._bound.get(id(v), -np.inf), x - r)
+                self._uncovered |= int(x < b - TOL)
+        self._bound = bound
 
     def overtake_transition(self, x, u, x1) -> tuple[int, int]:
         """``(ego, lead)`` violations of one overtake transition ``x -> x1`` under input ``u`` (0 or 1 each)."""

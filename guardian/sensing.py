@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -225,16 +225,16 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
     ``RoadMap`` fronts are along the lanes' chains, obstacles are standing cars and each dead end is a
     standing car of length 0 (``guardian.roads``).
 
-    A car driving backwards (outside the traffic model) is taken ``reverse_reach`` metres longer at its rear
-    (how far it may still back up) and in the lanes beside its own too (its steering swings a reversing
-    body): ``GuardianConfig.reverse_reach``.
+    A car driving backwards (outside the traffic model) is taken longer at its rear by how far it may still
+    back up (``reverse_reach``, ``GuardianConfig``; more behind a car that reverses too: ``reverse_reaches``)
+    and in the lanes beside its own too (its steering swings a reversing body).
     """
     ego = base.vehicle if ego is None else ego
     announced = announced or {}
     if isinstance(road, RoadMap):
         return _map_scene(base, road, ego, ego_lanes, guarded, announced, reverse_reach)
     lead = getattr(base, "lead", None)
-    others = []
+    others, own = [], []
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego or veh is lead:
             continue
@@ -244,12 +244,12 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
         if guarded:
             lanes = lanes | frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road))
             lanes = lanes | announced.get(id(veh), frozenset())
-        length = veh.LENGTH
         if veh.speed < 0:
             lanes = lanes | frozenset(j + s for j in lanes for s in (-1, 1) if 1 <= j + s <= road.n_lanes)
-            length += reverse_reach
-        others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, length, f"car {k}",
+        others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, veh.LENGTH, f"car {k}",
                           id(veh) in guarded, bool(veh.crashed)))
+        own.append(road.n_lanes - lane)
+    others = _lengthen_reversing(others, own, reverse_reach)
     me = Car(float(ego.position[0]) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego",
              id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
@@ -297,7 +297,7 @@ def blind_to(base, veh, probes) -> bool:
 def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_reach: float) -> Scene:
     from guardian.ego import BicycleEgo
 
-    others = []
+    others, own = [], []
     ego_front = road.longitudinal(ego.lane_index, float(ego.position[0]), float(ego.position[1])) + ego.LENGTH / 2
     probes = ego_probes(base, ego)
     for k, veh in enumerate(base.road.vehicles):
@@ -311,9 +311,10 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_
             slots = slots | {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
             lanes = frozenset(road.itha_lane(j) for j in slots)
         lanes = lanes | announced.get(id(veh), frozenset())
-        length = veh.LENGTH + (reverse_reach if reversing else 0.0)
-        others.append(Car(front, float(veh.speed), lanes, length, f"car {k}", id(veh) in guarded,
+        others.append(Car(front, float(veh.speed), lanes, veh.LENGTH, f"car {k}", id(veh) in guarded,
                           bool(veh.crashed), blind=blind))
+        own.append(road.itha_lane(road.slot_of(veh.lane_index)))
+    others = _lengthen_reversing(others, own, reverse_reach)
     for k, obj in enumerate(base.road.objects):
         if not (getattr(obj, "solid", True) and getattr(obj, "collidable", True)):
             continue
@@ -327,6 +328,29 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_
     others.extend(road.end_cars())
     me = Car(ego_front, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego", id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
+
+
+def reverse_reaches(fronts, speeds, lanes, reach: float) -> list:
+    """How far each car may still back up: 0 for a car that does not drive backwards; ``reach`` for one that
+    does, plus the reach of the car it follows in its own lane (``lanes[i]``, ``fronts`` along it) when that
+    car drives backwards too: a queue that reverses backs up link by link (an IDM car reverses to open its
+    gap to the car ahead, and that car is moving back)."""
+    out = [0.0] * len(fronts)
+    order = sorted(range(len(fronts)), key=lambda i: -fronts[i])
+    ahead = {}   # lane -> the index of the last car seen (the nearest ahead of the next one)
+    for i in order:
+        j = ahead.get(lanes[i])
+        if speeds[i] < 0:
+            out[i] = reach + (out[j] if j is not None and speeds[j] < 0 else 0.0)
+        ahead[lanes[i]] = i
+    return out
+
+
+def _lengthen_reversing(cars: list, own: list, reach: float) -> list:
+    if not any(c.speed < 0 for c in cars):
+        return cars
+    extra = reverse_reaches([c.front for c in cars], [c.speed for c in cars], own, reach)
+    return [replace(c, length=c.length + e) if e else c for c, e in zip(cars, extra)]
 
 
 def _vehicle_reading(road: RoadMap, veh) -> tuple:

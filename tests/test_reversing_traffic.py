@@ -15,7 +15,7 @@ import envs  # noqa: F401 - registers guardian/Merge-v0
 from guardian.config import GuardianConfig
 from guardian.monitor import ModelMonitor
 from guardian.rollout import highway_rollouts
-from guardian.sensing import Road, road_scene
+from guardian.sensing import Road, reverse_reaches, road_scene
 from guardian.wrapper import Guardian
 
 SIM_DT = 1 / 15   # highway-v0's simulation step [s]
@@ -42,19 +42,22 @@ def _highway(config: GuardianConfig | None):
     return Guardian(env, None, config or GuardianConfig()) if config is not None else env
 
 
-def _episode(env, rng) -> tuple:
-    """The ego, full throttle, approaches a car that already backs towards it; (crashed, start inside,
-    metres the car backed up)."""
+def _episode(env, rng, queue: bool = False) -> tuple:
+    """The ego, full throttle, approaches a car that already backs towards it (``queue``: behind a car
+    that backs up too, the nearer one by up to ``reverse_reach`` more); (crashed, start inside, metres the
+    nearer car backed up)."""
     env.reset(seed=int(rng.integers(1 << 30)))
     base = env.unwrapped
     ego = base.vehicle
     ego.position = np.array([100.0, 0.0])
     ego.heading, ego.speed = 0.0, float(rng.uniform(5.0, 20.0))
     reach = GuardianConfig().reverse_reach
-    gap = float(rng.uniform(20.0, 50.0))
-    car = Reverser(base.road, [ego.position[0] + ego.LENGTH + gap, 0.0], float(rng.uniform(-2.5, -0.5)),
-                   float(rng.uniform(1.0, reach)))
+    gap, speed, distance = float(rng.uniform(20.0, 50.0)), float(rng.uniform(-2.5, -0.5)), float(rng.uniform(1.0, reach))
+    car = Reverser(base.road, [ego.position[0] + ego.LENGTH + gap, 0.0], speed, distance)
     base.road.vehicles = [ego, car]
+    if queue:   # the same start, eased off less: it backs up at least as fast as its leader, never into it
+        car.ease = speed ** 2 / (2 * (distance + float(rng.uniform(0.5, reach)) - abs(speed) * SIM_DT))
+        base.road.vehicles.append(Reverser(base.road, [car.position[0] + car.LENGTH + 3.0, 0.0], speed, distance))
     inside = env.starts_inside()[0]
     for _ in range(12):
         env.step(np.array([1.0, 0.0]))
@@ -83,6 +86,23 @@ def test_a_guarded_car_never_reaches_a_car_that_backs_up_within_the_reach():
     assert inside_runs >= 15 and crashes_bare > 0
 
 
+def test_behind_a_queue_that_backs_up_the_reach_adds_up(monkeypatch):
+    """The same falsifier behind two cars that reverse, the nearer one backing up to ``reverse_reach`` more
+    than its leader: no contact from a start inside; with one reach per car (no queue rule) the draws crash."""
+    import guardian.sensing as sensing
+
+    def outcomes(seed):
+        rng, covered = np.random.default_rng(seed), _highway(GuardianConfig())
+        runs = [_episode(covered, rng, queue=True) for _ in range(30)]
+        return [crashed for crashed, inside, _ in runs if inside]
+
+    with_queue = outcomes(11)
+    assert len(with_queue) >= 15 and not any(with_queue)
+    monkeypatch.setattr(sensing, "reverse_reaches", lambda fronts, speeds, lanes, reach:
+                        [reach if s < 0 else 0.0 for s in speeds])
+    assert any(outcomes(11))
+
+
 def test_a_reversing_car_is_taken_longer_and_in_the_lanes_beside_it():
     env = _highway(None)
     env.reset(seed=0)
@@ -93,23 +113,50 @@ def test_a_reversing_car_is_taken_longer_and_in_the_lanes_beside_it():
         base.road.vehicles = [base.vehicle, car]
         (seen,) = road_scene(base, road, reverse_reach=3.0).others
         assert (set(seen.lanes), seen.length) == (lanes, length)
+    base.road.vehicles = [base.vehicle, Vehicle(base.road, [150.0, 0.0], speed=-1.0),
+                          Vehicle(base.road, [140.0, 0.0], speed=-1.0)]
+    assert [c.length for c in road_scene(base, road, reverse_reach=3.0).others] == [8.0, 11.0]   # a queue
+
+
+def _monitor(reach, *cars):
+    monitor = ModelMonitor(0.1, (-6.0, 6.0), 40.0, watch_traffic=True, reverse_reach=reach)
+    monitor._bicycle_fits = lambda prev, now: True
+    ego = SimpleNamespace(position=np.zeros(2), speed=0.0, heading=0.0, lane_index=("a", "b", 1))
+    return monitor, SimpleNamespace(vehicle=ego, road=SimpleNamespace(vehicles=[ego, *cars]))
+
+
+def _car(x, lane=0):
+    return SimpleNamespace(position=np.array([x, 0.0]), speed=0.0, heading=0.0, lane_index=("a", "b", lane))
 
 
 def test_the_monitor_counts_the_steps_a_car_backs_up_beyond_the_reach():
-    dt, reach = 0.1, 0.5
-    monitor = ModelMonitor(dt, (-6.0, 6.0), 40.0, watch_traffic=True, reverse_reach=reach)
-    ego = SimpleNamespace(position=np.zeros(2), speed=0.0, heading=0.0, lane_index=None)
-    car = SimpleNamespace(position=np.array([50.0, 0.0]), speed=-1.0, heading=0.0)
-    base = SimpleNamespace(vehicle=ego, road=SimpleNamespace(vehicles=[ego, car]))
-    monitor._bicycle_fits = lambda prev, now: True
+    car = _car(50.0)
+    monitor, base = _monitor(0.5, car)
     seen = []
     for speed in [-1.0] * 8 + [0.0] + [-1.0] * 3:
         car.speed = speed
         seen.append(monitor.observe(base, [0.0, 0.0])["traffic_reversing_uncovered"])
-        car.position[0] += speed * dt
-    # 0.1 m per step at -1 m/s: beyond 0.5 m from the 6th step of the first reversal on; the stop ends it
-    assert seen == [0, 0, 0, 0, 0, 0, 1, 1, 1, 0, 0, 0]
-    assert monitor.totals["traffic_reversing_uncovered"] == 3
+        car.position[0] += speed * 0.1
+    # 0.1 m per step at -1 m/s: more than 0.5 m behind where it was first seen reversing from the 7th step
+    # of the first reversal on; a step seen at standstill ends it, and the next reversal starts afresh
+    assert seen == [0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0]
+    assert monitor.totals["traffic_reversing_uncovered"] == 2
+
+
+@pytest.mark.parametrize("leader_reverses, counted", [(True, 0), (False, 1)])
+def test_a_car_behind_a_car_that_reverses_too_may_back_up_further(leader_reverses, counted):
+    """A queue that reverses backs up link by link: the second car's reach adds its leader's."""
+    assert reverse_reaches([30.0, 20.0, 10.0, 5.0], [-1.0, -1.0, 2.0, -1.0], [1, 1, 1, 1], 4.0) == [4.0, 8.0, 0.0, 4.0]
+    assert reverse_reaches([30.0, 20.0], [-1.0, -1.0], [1, 2], 4.0) == [4.0, 4.0]   # other lanes: no queue
+    leader, follower = _car(60.0), _car(50.0)
+    monitor, base = _monitor(0.5, leader, follower)
+    seen = []
+    for _ in range(8):   # the follower backs up 0.7 m: within 0.5 m + its leader's 0.5 m while the leader reverses
+        leader.speed, follower.speed = (-0.5 if leader_reverses else 0.0), -1.0
+        seen.append(monitor.observe(base, [0.0, 0.0])["traffic_reversing_uncovered"])
+        for c in (leader, follower):
+            c.position[0] += c.speed * 0.1
+    assert sum(seen) == counted * 2
 
 
 @pytest.mark.parametrize("seed, density, overapprox, episode", [
