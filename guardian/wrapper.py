@@ -310,19 +310,22 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         guarded car?"""
         return all(self.starts_inside())
 
+    def _scene(self, base, *args, **kwargs):
+        """``guardian.sensing.road_scene`` of this road, with this config's cover for reversing traffic."""
+        return road_scene(base, self.road, *args, reverse_reach=self.config.reverse_reach, **kwargs)
+
     def starts_inside(self) -> list:
         """Per guarded car: does its start lie in its invariant sets?"""
         base = self.env.unwrapped
         if self.scenario == "overtake":
-            scene = road_scene(base, self.road, reverse_reach=self.config.reverse_reach)
+            scene = self._scene(base)
             return [bool(self.guard.inside(base.overtake_state(), scene))]
         out = []
         for car in self.cars:
             state = bicycle_state(car.vehicle, self.road)
             kin = car.guard.kin
             lanes = {self.road.itha_lane(i) for i in (set(kin.body_lanes(state)) or {state.lane})}
-            scene = road_scene(base, self.road, lanes, ego=car.vehicle, guarded=self._guarded,
-                               reverse_reach=self.config.reverse_reach)
+            scene = self._scene(base, lanes, ego=car.vehicle, guarded=self._guarded)
             speeds, _ = car.guard.traffic.self_safe_speeds(scene)
             out.append(bool(kin.accel_for_speeds(state.speed, speeds)))
         return out
@@ -425,8 +428,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                     continue
                 state = bicycle_state(car.vehicle, self.road)
                 target = state.lane + (-1 if proposed[i] == "LANE_LEFT" else 1)
-                scene = road_scene(base, self.road, ego=car.vehicle, guarded=self._guarded, announced=announced,
-                                   reverse_reach=self.config.reverse_reach)
+                scene = self._scene(base, ego=car.vehicle, guarded=self._guarded, announced=announced)
                 ok, reason = car.guard.policy_lane_change(state, scene, target)
                 if not ok:
                     car.refused_meta = f"lane change refused: {reason}"
@@ -488,7 +490,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _supervise_overtake(self, base, ego):
         u = ego.input.copy()
-        scene = road_scene(base, self.road, reverse_reach=self.config.reverse_reach)
+        scene = self._scene(base)
         applied, decision = self.guard.step(base.overtake_state(), scene, u)
         ego.action = {"acceleration": float(applied[0]), "steering": float(applied[1])}
         if decision.refused and ego.meta is not None:
@@ -499,8 +501,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ego = car.vehicle
         proposed = (float(ego.action["acceleration"]), float(ego.action["steering"]))
         state = bicycle_state(ego, self.road)
-        scene = road_scene(base, self.road, ego=ego, guarded=self._guarded, announced=announced,
-                           reverse_reach=self.config.reverse_reach)
+        scene = self._scene(base, ego=ego, guarded=self._guarded, announced=announced)
         applied, decision = car.guard.step(state, scene, proposed)
         if decision.refused and self.kind == "DiscreteMetaAction":
             ego.target_lane_index = ego.lane_index  # abandon the lane change, steer back
