@@ -19,6 +19,7 @@ those at a guarded car's fault (the independent fault judge, ``guardian.judge``)
 guarded cars; failsafe simulation steps. Cost: the guardian's decision per guarded car per simulation
 step (``Guardian._supervise_highway``: reading the scene and deciding; median and p99 in ms) beside the
 simulator's own simulation step (median, all cars), timed in a separate short run of each setting.
+Progress goes to stderr, one line per episode (a bar on a terminal).
 
 The default agent is ``merge`` (on the ramp it asks for the main road, elsewhere for full speed): the
 cars' wish to merge is what the two over-approximations treat differently.
@@ -56,12 +57,14 @@ def _config(density: str, agent: str = "merge") -> dict:
 
 def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: int, agent: str, action: str) -> dict:
     from guardian.config import GuardianConfig
+    from guardian.progress import ProgressBar
     from guardian.rollout import highway_rollouts
 
     guarded = overapprox is not None
     r = highway_rollouts(ENV, agent, episodes, seed, action=action, controlled=n, guardian=guarded,
                          env_config=_config(density, agent),
-                         guardian_config=GuardianConfig(overapprox=overapprox) if guarded else None)
+                         guardian_config=GuardianConfig(overapprox=overapprox) if guarded else None,
+                         progress=ProgressBar(f"N={n} {density} {overapprox or 'unguarded'}"))
     return {"n": n, "density": density, "overapprox": overapprox or "unguarded", "episodes": episodes,
             "distance_per_car": r["distance_mean"], "lane_changes": r["lane_changes"], "merges": r["merges"],
             "on_ramp": r["on_ending_lane"], "override_steps": r["override_steps"], "collisions": r["collisions"],
