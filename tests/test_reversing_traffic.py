@@ -52,7 +52,9 @@ def _episode(env, rng, queue: bool = False) -> tuple:
     ego.position = np.array([100.0, 0.0])
     ego.heading, ego.speed = 0.0, float(rng.uniform(5.0, 20.0))
     reach = GuardianConfig().reverse_reach
-    gap, speed, distance = float(rng.uniform(20.0, 50.0)), float(rng.uniform(-2.5, -0.5)), float(rng.uniform(1.0, reach))
+    fastest = -6.0 if queue else -2.5   # a queue backs up further: fast enough to pass one reach in the episode
+    gap = float(rng.uniform(12.0, 42.0)) + reach * (2 if queue else 1)   # beyond the rear it keeps room behind
+    speed, distance = float(rng.uniform(fastest, -0.5)), float(rng.uniform(1.0, reach))
     car = Reverser(base.road, [ego.position[0] + ego.LENGTH + gap, 0.0], speed, distance)
     base.road.vehicles = [ego, car]
     if queue:   # the same start, eased off less: it backs up at least as fast as its leader, never into it
@@ -177,3 +179,21 @@ def test_the_at_fault_crashes_with_reversing_traffic_at_the_ramps_end_are_covere
                              guardian_config=GuardianConfig(overapprox=overapprox), first_episode=episode)
     assert r["ego_at_fault_collisions"] + r["ego_at_fault_after_outside_starts"] == 0, r["crashes"]
     assert r["unchecked_entries"] == 0 and r["traffic_reversing_uncovered_steps"] == 0
+
+
+def test_highway_envs_idm_backs_up_within_the_default_reach():
+    """highway-env's own IDMVehicle, behind a standing car in its lane and beside a standing car that its
+    neighbour search takes as ahead (``benchmarks/idm_reversal.py``'s two families, around their worst starts),
+    never backs up further than the default reach; the old 8 m did not cover the car beside."""
+    import importlib.util
+    import pathlib
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "idm_reversal.py"
+    spec = importlib.util.spec_from_file_location("idm_reversal", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    behind = [bench.longest_reversal(gap, speed) for gap in (0.0, 1.0, 3.0) for speed in (0.0, 2.0, 5.0)]
+    beside = [bench.longest_reversal(gap, speed, beside=True) for gap in (0.2, 0.4, 1.0, 3.0) for speed in (0.0, 2.0, 4.0)]
+    longest = max(r for r in behind + beside if r is not None)
+    assert longest <= GuardianConfig().reverse_reach
+    assert max(r for r in beside if r is not None) > 8.0
