@@ -1,4 +1,19 @@
+import importlib.util
+import pathlib
+
 import pytest
+
+
+@pytest.fixture(scope="session")
+def benchmark_module():
+    """``benchmark_module(name)``: the script ``benchmarks/<name>.py`` as a module (benchmarks are not a package)."""
+    def load(name: str):
+        path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    return load
 
 
 @pytest.fixture(scope="session")

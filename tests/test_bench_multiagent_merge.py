@@ -1,18 +1,10 @@
 """The multi-agent table adds up runs in pieces by seed: every count summed, none dropped."""
-import importlib.util
-import pathlib
-
 import pytest
-
-_PATH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "bench_multiagent.py"
 
 
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_multiagent", _PATH)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def bench(benchmark_module):
+    return benchmark_module("bench_multiagent")
 
 
 def _row(episodes, distance, collisions, at_fault, crashes=()):

@@ -181,17 +181,11 @@ def test_the_at_fault_crashes_with_reversing_traffic_at_the_ramps_end_are_covere
     assert r["unchecked_entries"] == 0 and r["traffic_reversing_uncovered_steps"] == 0
 
 
-def test_highway_envs_idm_backs_up_within_the_default_reach():
+def test_highway_envs_idm_backs_up_within_the_default_reach(benchmark_module):
     """highway-env's own IDMVehicle, behind a standing car in its lane and beside a standing car that its
     neighbour search takes as ahead (``benchmarks/idm_reversal.py``'s two families, around their worst starts),
     never backs up further than the default reach; the old 8 m did not cover the car beside."""
-    import importlib.util
-    import pathlib
-
-    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "idm_reversal.py"
-    spec = importlib.util.spec_from_file_location("idm_reversal", path)
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = benchmark_module("idm_reversal")
     behind = [bench.longest_reversal(gap, speed) for gap in (0.0, 1.0, 3.0) for speed in (0.0, 2.0, 5.0)]
     beside = [bench.longest_reversal(gap, speed, beside=True) for gap in (0.2, 0.4, 1.0, 3.0) for speed in (0.0, 2.0, 4.0)]
     longest = max(r for r in behind + beside if r is not None)
