@@ -15,6 +15,11 @@ steering]``, and returns the input to apply and a ``Decision``.
 * Meta agents: lane changes are judged once per policy step (``policy_lane_change``); a lane change
   under way whose target the body has not reached yet is re-judged every step and abandoned
   (``Decision.refused``) when it is no longer responsible.
+* Lanes the road brings to the body: where a lane begins beside the ego or an on-ramp's strip closes in,
+  the (widened) body can overlap a lane it never entered. Only lanes the body holds (where it began,
+  the lane it is in alone, entries judged responsible) are its own; a lane it touches beyond them is
+  judged as an entry (7.5) the moment it is touched and, when that is not responsible, is a lane the
+  steering must not enter further (no path may overlap it) until the body is clear of it.
 * Fail-safe: the hardest braking down to standstill (never reversing), steering straight.
 """
 from __future__ import annotations
@@ -68,6 +73,7 @@ class BicycleGuardian:
     def reset(self) -> None:
         self._limits = []
         self.home = None
+        self.held = None          # highway lane ids the body may overlap: the start's, home, responsible entries
         self.authorized = set()   # highway lane ids being entered after a responsible entry
 
     def itha_lane(self, lane_id: int) -> int:
@@ -117,16 +123,21 @@ class BicycleGuardian:
         kin = self.kin
         d = Decision(proposed=[a_prop, steer_prop], applied=[], changed="none")
         now = set(kin.occupied(ego)) or {ego.lane}
+        if self.held is None:
+            self.held = set(now)  # the start: every lane the body overlaps when supervision begins
         if len(now) == 1:
             self.home = next(iter(now))
         elif self.home not in now:
             self.home = ego.lane
         self.authorized &= now - {self.home}
+        self.held = (self.held & now) | {self.home} | self.authorized
+        touched = self._touched(ego, scene, now, d)
         if self.meta:
             occupied, entry = self._meta_lanes(ego, scene, now, d)
-            steer = self._meta_steering(ego, occupied, steer_prop, d)
+            steer = self._meta_steering(ego, occupied - touched, steer_prop, d)
         else:
-            steer, occupied, entry = self._steering(ego, scene, now, steer_prop, d)
+            steer, occupied, entry = self._steering(ego, scene, now, steer_prop, d, touched)
+        entry = intersect_intervals(entry, self._touched_speeds)
         accel = self._accelerations(ego, scene, occupied, entry, d)
         if accel:
             a = nearest_in_intervals(accel, a_prop)
@@ -138,8 +149,10 @@ class BicycleGuardian:
             d.note("failsafe: no self-safe acceleration; braking as hard as the model allows, down to standstill")
         d.applied = [a, steer]
         self.authorized |= {self.kin.n_lanes - lane for lane in d.entered}
+        self.held |= self.authorized
         d.entered = sorted({self.itha_lane(i) for i in self.authorized})
-        d.lanes = sorted({self.itha_lane(i) for i in now | self.authorized})  # never a lane entered unchecked
+        d.lanes = sorted({self.itha_lane(i) for i in self.held})  # never a lane entered unchecked
+        d.touched = sorted({self.itha_lane(i) for i in touched - self.held})
         d.admissible_acceleration = [list(r) for r in accel]
         d.in_invariant_set = bool(accel)
         if d.changed == "none" and (abs(a - a_prop) > 1e-9 or abs(steer - steer_prop) > 1e-12):
@@ -147,10 +160,30 @@ class BicycleGuardian:
                 "steering" if abs(a - a_prop) <= 1e-9 else "both")
         return np.array([a, steer]), d
 
+    def _touched(self, ego: EgoState, scene: Scene, now: set, d: Decision) -> set:
+        """Lanes the body overlaps but does not hold: each judged as an entry (7.5) now (the body is in it
+        for the cars there); those not responsible are returned (the steering must not enter them
+        further) and the responsible ones are held from now on, their entry's speeds in
+        ``_touched_speeds``."""
+        self._touched_speeds = [(0.0, np.inf)]
+        refused = set()
+        for lane_id in sorted(now - self.held):
+            d.note(f"the road brings lane {self.itha_lane(lane_id)} to the body")
+            speeds = self._entry(ego, scene, self.held, lane_id, d)
+            if speeds is None:
+                d.note(f"lane {self.itha_lane(lane_id)} touched, its entry refused: {d.entries[-1].reason}")
+                refused.add(lane_id)
+                continue
+            self._touched_speeds = intersect_intervals(self._touched_speeds, speeds)
+            self.authorized.add(lane_id)
+            self.held.add(lane_id)
+        return refused
+
     def _entry(self, ego: EgoState, scene: Scene, now: set, lane_id: int, d: Decision) -> list | None:
         """Next speeds making the entry into highway lane ``lane_id`` responsible (7.5) and self-safe in
         both lanes; None (and the refusal recorded) when there are none."""
         lane = self.itha_lane(lane_id)
+        now = now & self.held or now  # lanes the body touches without holding them are not a start
         start = now if len(now) == 1 else {ego.lane}  # straddling: judged from the lane it is closest to
         if abs(next(iter(start)) - lane_id) != 1:
             d.entries.append(Entry(lane, False, "not next to the lane the ego is in"))
@@ -177,7 +210,7 @@ class BicycleGuardian:
     def _meta_lanes(self, ego: EgoState, scene: Scene, now: set, d: Decision):
         """Lanes the meta ego occupies this step and the entry's next speeds; a lane change not yet
         begun is re-judged, and abandoned (``d.refused``) when it is no longer responsible."""
-        if ego.target_lane != ego.lane and ego.target_lane not in now:
+        if ego.target_lane != ego.lane and ego.target_lane not in self.held:
             speeds = self._entry(ego, scene, now, ego.target_lane, d)
             if speeds is None:
                 d.changed = "lane_change"
@@ -206,9 +239,11 @@ class BicycleGuardian:
         d.note("failsafe: no steering keeps the body in the lanes the lane change holds; straightening")
         return float(kin.recovery(ego))
 
-    def _steering(self, ego: EgoState, scene: Scene, now: set, proposed: float, d: Decision):
-        """The steering nearest to the proposal whose path enters no lane irresponsibly."""
+    def _steering(self, ego: EgoState, scene: Scene, now: set, proposed: float, d: Decision, touched: set):
+        """The steering nearest to the proposal whose path enters no lane irresponsibly (a lane the body
+        only touches, ``touched``, counts as not entered: its path may not overlap it)."""
         kin = self.kin
+        held = self.held & now or now
         for k, steer in enumerate(kin.candidates(ego, proposed)):
             why = f"steering {proposed:.3f} rad refused: " if k == 0 else ""  # only the proposal's refusal is said
             nxt = kin.after(ego, steer)
@@ -219,15 +254,19 @@ class BicycleGuardian:
             if depth > kin.depth_of(ego) + 1e-9:
                 d.note(why and why + "the body would leave the road before its heading is straightened")
                 continue  # leaves the road, or further than it already is
-            new = lanes - now
+            new = lanes - held
             entry = [(0.0, np.inf)]
+            if new & touched:
+                d.note(why and why + f"the body would stay in lanes {sorted(self.itha_lane(i) for i in new & touched)}"
+                       ", whose entry is refused")
+                continue
             if new:
-                if k > 0 or len(now) != 1 or len(new) != 1:
+                if k > 0 or len(held) != 1 or len(new) != 1:
                     d.note(why and why + (f"it would enter lanes {sorted(self.itha_lane(i) for i in new)} at once"
-                                          if len(now) == 1 else "it would enter another lane while the body "
-                                          f"straddles lanes {sorted(self.itha_lane(i) for i in now)}"))
+                                          if len(held) == 1 else "it would enter another lane while the body "
+                                          f"straddles lanes {sorted(self.itha_lane(i) for i in held)}"))
                     continue
-                entry = self._entry(ego, scene, now, next(iter(new)), d)
+                entry = self._entry(ego, scene, held, next(iter(new)), d)
                 if entry is None:
                     d.note(f"entering lane {d.entries[-1].lane} refused: {d.entries[-1].reason}")
                     continue

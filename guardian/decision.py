@@ -54,6 +54,8 @@ class Decision:
     entered: list = field(default_factory=list)    # [lane, ...]
     lanes: list = field(default_factory=list)      # every lane the body may overlap during the step: the
                                                    # lanes it held and those entered responsibly
+    touched: list = field(default_factory=list)    # lanes the body overlaps without holding them (the road
+                                                   # brought them; their entry refused): not to be entered
     refused: list = field(default_factory=list)    # [lane, ...]
     entries: list = field(default_factory=list)    # [Entry, ...] every entry checked this step
     active_set: str = "itha"

@@ -330,9 +330,13 @@ class RoadMapEgo(BicycleEgo):
         return self.road.body_slots(xs, ys, hs, self.length, self.width, self.LATERAL_MARGIN, dx, dy)
 
     def _depth(self, xs, ys, hs) -> float:
+        """How far the body, widened by ``LATERAL_MARGIN`` (as against lane borders), reaches off the road: a
+        body kept at depth 0 stays that far inside the road's edges, so a lane that begins beyond an edge
+        (an on-ramp's parallel part, an exit lane) does not begin under it."""
         from guardian.roads import outline
 
-        px, py = outline(xs, ys, hs, self.length, self.width)
+        m = 2 * self.LATERAL_MARGIN
+        px, py = outline(xs, ys, hs, self.length + m, self.width + m)
         d = self.road.depth(px, py)
         return float(np.max(d)) if d.size else 0.0
 

@@ -479,7 +479,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
             c = self.cars[i]
             decision = self._supervise_highway(base, c, announced)
             if self._ordered:  # where this car may be during the step, for the cars after it
-                announced[id(c.vehicle)] = frozenset(decision.lanes)
+                announced[id(c.vehicle)] = frozenset(decision.lanes) | frozenset(decision.touched)
             self._decided(base, c, decision)
 
     def _decided(self, base, car: _Car, decision) -> None:

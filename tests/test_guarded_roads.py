@@ -264,3 +264,15 @@ def test_guarded_merge_traffic_sees_across_lane_segments_by_default():
         env.reset(seed=0)
         assert env.unwrapped.road.neighbour_vehicles_connected_lanes is expected
         env.close()
+
+
+@pytest.mark.parametrize("episode", [128, 183])
+def test_the_unchecked_entries_found_riding_the_ramps_border_are_gone(episode):
+    """``guardian rollout --env guardian/Merge-v0 --action continuous --agent reckless --seed 0`` (250
+    episodes) counted three entries without a responsibility check: the reckless agent rode the line
+    between slots 1 and 2 (the body a hair off the road's edge) until the ramp's lane came under the
+    body; the guardian then took the touched lane as held and let full right steering into it unjudged
+    (episode 128), or the body was left overlapping it (183). Now the body keeps the margin from the
+    road's edge and a touched lane is judged as an entry: the same episodes count none."""
+    r = highway_rollouts("guardian/Merge-v0", "reckless", 1, 0, action="continuous", first_episode=episode)
+    assert r["unchecked_entries"] == 0 and r["collisions"] == 0

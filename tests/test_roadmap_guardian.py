@@ -147,3 +147,51 @@ def test_self_safety_along_the_exits_curve(exit_road):
     assert applied[0] < 6.0 and any("car 0 ahead in lane 1" in r for r in d.reasons)
     free, _ = g.step(ego, _scene(exit_road, ego, [(ego.front + 200.0, 0.0, 6)]), [6.0, 0.0])
     assert free[0] == 6.0
+
+
+
+def _ride(road, x, y, cars, steps, steer=math.pi / 4):
+    """A continuous agent at ``(x, y)`` asking for the same steering (full right by default) every step,
+    beside traffic ``(front, speed, slot)`` driving at constant speed."""
+    g = _guard(road)
+    ego = _state(road, x, y, 0.0, 17.85)
+    run = []
+    for k in range(steps):
+        moved = [(f + k * DT * v, v, slot) for f, v, slot in cars]
+        applied, d = g.step(ego, _scene(road, ego, moved), [0.0, steer])
+        ego = _step(road, ego, *applied)
+        run.append((d, ego))
+    return run
+
+
+def _in_ramp_lane(road, ego) -> bool:
+    return 2 in road.body_slots(ego.x, ego.y, ego.heading, 5.0, 2.0)
+
+
+def test_the_body_is_kept_inside_the_roads_edge_by_the_margin(merge):
+    """Full right steering along the main road before the ramp joins: the body may come to the road's
+    edge but no nearer than ``LATERAL_MARGIN`` (riding the edge itself, the ramp's lane would begin
+    under the body when its parallel part starts)."""
+    run = _ride(merge, 150.0, 4.0, [], 80)
+    edge = max(ego.y + 1.0 for _, ego in run if ego.x < 220.0)
+    assert 6.0 - RoadMapEgo.LATERAL_MARGIN - 0.01 < edge <= 6.0 - RoadMapEgo.LATERAL_MARGIN + 1e-6
+
+
+def test_a_lane_the_road_brings_to_the_body_is_judged_before_it_is_entered(merge):
+    """A body within the margin of the line between slots 1 and 2 (as a start may place it) touches the
+    ramp's lane when its parallel part begins (x = 230) without steering. The touch is judged as an
+    entry (7.5) and the body enters the lane only after an entry judged responsible (without the
+    judgment the touched lane was taken as held and full right steering went into it unjudged)."""
+    run = _ride(merge, 222.0, 4.98, [], 60)
+    assert any("the road brings lane 1 to the body" in r for d, _ in run for r in d.reasons)
+    first = next(k for k, (_, ego) in enumerate(run) if _in_ramp_lane(merge, ego))
+    assert any(e.lane == 1 and e.responsible for d, _ in run[:first + 1] for e in d.entries)
+    assert run[-1][1].y > 7.0  # it merged, through the judged entry
+
+
+def test_a_touched_lane_whose_entry_is_not_responsible_is_not_entered(merge):
+    """The same ride with a faster car on the ramp just behind: entering its lane is not responsible;
+    the body touches the lane (it is in it for the cars there: ``touched``) but does not enter it."""
+    run = _ride(merge, 222.0, 4.98, [(222.0 + 2.5 - 8.0, 24.0, 2)], 40)
+    assert any(1 in d.touched for d, _ in run)
+    assert not any(_in_ramp_lane(merge, ego) for _, ego in run)
