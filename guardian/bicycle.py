@@ -244,6 +244,7 @@ class BicycleGuardian:
         only touches, ``touched``, counts as not entered: its path may not overlap it)."""
         kin = self.kin
         held = self.held & now or now
+        depth_now = kin.depth_of(ego)
         for k, steer in enumerate(kin.candidates(ego, proposed)):
             why = f"steering {proposed:.3f} rad refused: " if k == 0 else ""  # only the proposal's refusal is said
             nxt = kin.after(ego, steer)
@@ -251,7 +252,7 @@ class BicycleGuardian:
                 d.note(why and why + f"the heading would pass the bound of {kin.MAX_HEADING} rad")
                 continue
             lanes, depth = kin.path_lanes_of(ego, steer)
-            if depth > kin.depth_of(ego) + 1e-9:
+            if depth > depth_now + 1e-9:
                 d.note(why and why + "the body would leave the road before its heading is straightened")
                 continue  # leaves the road, or further than it already is
             new = lanes - held
