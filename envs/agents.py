@@ -17,7 +17,9 @@ controls, normalised to ``[-1, 1]``) or ``DiscreteAction`` (the nearest point of
 * adversaries (highway-env roads), trying to make the guardian fail: ``seek`` (drive at the nearest
   car), ``brake_check`` (cut in front of a car behind, then brake hard), ``oscillate`` (flip the
   lateral command every few steps at full throttle), ``hold`` (hold a random action 1-3 s), ``trap``
-  (close up on the car ahead, swerve into a neighbouring lane when a car is level or closing there).
+  (close up on the car ahead, swerve into a neighbouring lane when a car is level or closing there),
+  ``line`` (ride a lane line at full throttle, the body's edge on it, so that lanes beginning beside it
+  or closing in come under the body; meta: ask for the lane change on its side at every step).
 
 With highway-env's ``MultiAgentAction`` every controlled car gets its own agent of the name, seeded from the
 episode's generator in the controlled order, which sees its own car as the ego (``MultiAgent``).
@@ -309,6 +311,30 @@ class MergeAgent:
         return _continuous(self.env, 1.0, steer)
 
 
+class LineAgent:
+    """Rides a lane line: full throttle, steering the body's edge onto the line between its lane and the
+    next one on its side (right or left, drawn per episode), on whatever lane it is on."""
+
+    def __init__(self, env, rng):
+        self.road = _Road(env)
+        self.side = 1.0 if rng.uniform() < 0.5 else -1.0  # +1: right (larger highway-env y)
+
+    def __call__(self, obs):
+        road = self.road
+        if road.kind == "DiscreteMetaAction":
+            return road.meta("LANE_RIGHT" if self.side > 0 else "LANE_LEFT")
+        ego, base = road.ego, road.base
+        lane = ego.lane
+        s, r = lane.local_coordinates(ego.position)
+        v, step = max(float(ego.speed), 1.0), 1.0 / float(base.config["policy_frequency"])
+        gap = self.side * (lane.width_at(s) - ego.WIDTH) / 2 - r  # to the line, sideways
+        want = lane.heading_at(s) + float(np.clip(np.arctan2(gap, 2 * v * step), -0.3, 0.3))
+        turn = (want - float(ego.heading) + np.pi) % (2 * np.pi) - np.pi
+        beta = np.arcsin(np.clip(turn * ego.LENGTH / 2 / (v * step), -0.99, 0.99))
+        steering = np.arctan(2 * np.tan(beta)) / max(abs(b) for b in base.action_type.steering_range)
+        return _continuous(road.env, 1.0, float(np.clip(steering, -1.0, 1.0)))
+
+
 class _CarEnv:
     """What one controlled car's agent sees of a multi-agent env: its own action space and type, its own car
     as the ego; everything else is the env's."""
@@ -353,10 +379,10 @@ def _mpc(style: str):
 _FACTORIES = {"random": RandomAgent, "reckless": RecklessAgent, "idle": IdleAgent, "merge": MergeAgent,
               **{name: _mpc(name) for name in STYLES},
               "seek": SeekAgent, "brake_check": BrakeCheckAgent, "oscillate": OscillateAgent, "hold": HoldAgent,
-              "trap": TrapAgent}
+              "trap": TrapAgent, "line": LineAgent}
 AGENTS = tuple(_FACTORIES)
 BASELINES = ("mpc", "bad", "careful", "random")
-ADVERSARIES = ("seek", "brake_check", "oscillate", "hold", "trap")  # need a highway-env road
+ADVERSARIES = ("seek", "brake_check", "oscillate", "hold", "trap", "line")  # need a highway-env road
 
 
 def _algorithm_of(data: dict) -> str | None:

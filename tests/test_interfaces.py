@@ -47,3 +47,22 @@ def test_every_agent_acts_inside_the_action_space_of_every_env_it_drives():
                 obs, _, term, trunc, _ = env.step(action)
                 if term or trunc:
                     obs, _ = env.reset(seed=2)
+
+
+def test_the_line_agent_rides_a_lane_line():
+    """``line`` puts the body's edge on the line beside its lane (the side drawn per episode) and keeps it
+    there, at either policy frequency: the adversary for lanes that begin or close in under a body."""
+    import highway_env  # noqa: F401
+
+    for frequency in (1, 5):
+        env = gym.make("highway-v0", config={"action": {"type": "ContinuousAction"}, "vehicles_count": 0,
+                                             "policy_frequency": frequency})
+        for seed in (0, 2):
+            obs, _ = env.reset(seed=3)
+            agent = make_agent("line", env, np.random.default_rng(seed))
+            for _ in range(8 * frequency):
+                obs, *_ = env.step(agent(obs))
+            ego = env.unwrapped.vehicle
+            centre = ego.lane.position(ego.lane.local_coordinates(ego.position)[0], 0)[1]
+            edge = ego.position[1] + agent.side * ego.WIDTH / 2
+            assert abs(edge - (centre + agent.side * ego.lane.width_at(0) / 2)) < 0.05
