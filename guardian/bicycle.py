@@ -131,13 +131,14 @@ class BicycleGuardian:
             self.home = ego.lane
         self.authorized &= now - {self.home}
         self.held = (self.held & now) | {self.home} | self.authorized
-        touched = self._touched(ego, scene, now, d)
+        touched, touched_speeds = self._touched(ego, scene, now, d)
+        held = self.held & now or now  # where the body is and may be: the start of any entry
         if self.meta:
-            occupied, entry = self._meta_lanes(ego, scene, now, d)
+            occupied, entry = self._meta_lanes(ego, scene, now, held, d)
             steer = self._meta_steering(ego, occupied - touched, steer_prop, d)
         else:
-            steer, occupied, entry = self._steering(ego, scene, now, steer_prop, d, touched)
-        entry = intersect_intervals(entry, self._touched_speeds)
+            steer, occupied, entry = self._steering(ego, scene, now, held, steer_prop, d, touched)
+        entry = intersect_intervals(entry, touched_speeds)
         accel = self._accelerations(ego, scene, occupied, entry, d)
         if accel:
             a = nearest_in_intervals(accel, a_prop)
@@ -160,12 +161,11 @@ class BicycleGuardian:
                 "steering" if abs(a - a_prop) <= 1e-9 else "both")
         return np.array([a, steer]), d
 
-    def _touched(self, ego: EgoState, scene: Scene, now: set, d: Decision) -> set:
+    def _touched(self, ego: EgoState, scene: Scene, now: set, d: Decision) -> tuple[set, list]:
         """Lanes the body overlaps but does not hold: each judged as an entry (7.5) now (the body is in it
-        for the cars there); those not responsible are returned (the steering must not enter them
-        further) and the responsible ones are held from now on, their entry's speeds in
-        ``_touched_speeds``."""
-        self._touched_speeds = [(0.0, np.inf)]
+        for the cars there). Returns those not responsible (the steering must not enter them further) and
+        the next speeds of the responsible ones' entries; the responsible ones are held from now on."""
+        speeds_all = [(0.0, np.inf)]
         refused = set()
         for lane_id in sorted(now - self.held):
             d.note(f"the road brings lane {self.itha_lane(lane_id)} to the body")
@@ -174,16 +174,15 @@ class BicycleGuardian:
                 d.note(f"lane {self.itha_lane(lane_id)} touched, its entry refused: {d.entries[-1].reason}")
                 refused.add(lane_id)
                 continue
-            self._touched_speeds = intersect_intervals(self._touched_speeds, speeds)
+            speeds_all = intersect_intervals(speeds_all, speeds)
             self.authorized.add(lane_id)
             self.held.add(lane_id)
-        return refused
+        return refused, speeds_all
 
     def _entry(self, ego: EgoState, scene: Scene, now: set, lane_id: int, d: Decision) -> list | None:
         """Next speeds making the entry into highway lane ``lane_id`` responsible (7.5) and self-safe in
         both lanes; None (and the refusal recorded) when there are none."""
         lane = self.itha_lane(lane_id)
-        now = now & self.held or now  # lanes the body touches without holding them are not a start
         start = now if len(now) == 1 else {ego.lane}  # straddling: judged from the lane it is closest to
         if abs(next(iter(start)) - lane_id) != 1:
             d.entries.append(Entry(lane, False, "not next to the lane the ego is in"))
@@ -207,11 +206,11 @@ class BicycleGuardian:
         d.entered.append(lane)
         return speeds
 
-    def _meta_lanes(self, ego: EgoState, scene: Scene, now: set, d: Decision):
+    def _meta_lanes(self, ego: EgoState, scene: Scene, now: set, held: set, d: Decision):
         """Lanes the meta ego occupies this step and the entry's next speeds; a lane change not yet
         begun is re-judged, and abandoned (``d.refused``) when it is no longer responsible."""
         if ego.target_lane != ego.lane and ego.target_lane not in self.held:
-            speeds = self._entry(ego, scene, now, ego.target_lane, d)
+            speeds = self._entry(ego, scene, held, ego.target_lane, d)
             if speeds is None:
                 d.changed = "lane_change"
                 d.note(f"lane change to lane {self.itha_lane(ego.target_lane)} abandoned: {d.entries[-1].reason}")
@@ -239,11 +238,11 @@ class BicycleGuardian:
         d.note("failsafe: no steering keeps the body in the lanes the lane change holds; straightening")
         return float(kin.recovery(ego))
 
-    def _steering(self, ego: EgoState, scene: Scene, now: set, proposed: float, d: Decision, touched: set):
+    def _steering(self, ego: EgoState, scene: Scene, now: set, held: set, proposed: float, d: Decision,
+                  touched: set):
         """The steering nearest to the proposal whose path enters no lane irresponsibly (a lane the body
         only touches, ``touched``, counts as not entered: its path may not overlap it)."""
         kin = self.kin
-        held = self.held & now or now
         depth_now = kin.depth_of(ego)
         for k, steer in enumerate(kin.candidates(ego, proposed)):
             why = f"steering {proposed:.3f} rad refused: " if k == 0 else ""  # only the proposal's refusal is said
