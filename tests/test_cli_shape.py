@@ -44,3 +44,12 @@ def test_each_group_lives_in_its_own_module():
     assert modules[("rcis", "build")] == "guardian.cli.sets" and modules[("serve",)] == "guardian.cli.serve"
     assert modules[("replay",)] == "guardian.cli.data" and modules[("itha", "highway")] == "guardian.cli.itha"
     assert modules[("rollout",)] == "guardian.cli.rollout"
+
+
+def test_the_agent_help_names_every_agent_there_is():
+    from envs.agents import AGENTS
+
+    rollout = _subparser(build_parser(), ("rollout",))
+    text = next(a.help for a in rollout._actions if "--agent" in a.option_strings)
+    named = {word.strip(" ,") for word in text.split("|")} | set(text.replace(",", " ").split())
+    assert set(AGENTS) <= named, set(AGENTS) - named

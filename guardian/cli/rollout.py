@@ -176,7 +176,7 @@ def add_commands(sub) -> None:
                         "segments)")
     p.add_argument("--agent", default="random",
                    help="random | reckless | idle | merge | mpc | bad | careful | seek | brake_check | oscillate | hold | "
-                        "trap, or all (Section 6.5.3's mpc, bad, careful, random)")
+                        "trap | line, or all (Section 6.5.3's mpc, bad, careful, random)")
     p.add_argument("--policy", type=Path, default=None, metavar="PATH.zip",
                    help="drive with a stable-baselines3 policy file instead of --agent")
     p.add_argument("--algo", default=None, help="the --policy file's algorithm (DQN, PPO, ...; default: read from it)")
