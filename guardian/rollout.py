@@ -82,12 +82,6 @@ OVERTAKE_ENVS = (TWO_CARS_ENV, OVERTAKE_ENV)
 ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "ContinuousAction"}}
 
 
-MERGE_ENVS = ("merge-v0", "merge-v1")  # highway-env's MergeEnv (v1: traffic searches across lane segments)
-MERGE_NOTE = ("highway-env's {env} {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
-                 "and it spawns one ego); guardian/Merge-v0 is merge-v0's road and traffic for both action types and "
-                 "several controlled cars (env config traffic=easy|medium|hard for the merging reference's modes)")
-
-
 def highway_env_config(env_id: str, action: str | None, intention: str | None = None, disturbance: str = "random",
                        traffic: int | None = None, library=None, extra: dict | None = None,
                        controlled: int | None = None) -> dict:
@@ -96,12 +90,10 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
     On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). ``controlled``:
     that many controlled cars under highway-env's ``MultiAgentAction`` (one agent and one guardian each).
     """
-    if env_id in MERGE_ENVS and action == "continuous":
-        raise ValueError(MERGE_NOTE.format(env=env_id, what="fails with ContinuousAction"))
+    from guardian.env_checks import env_class, merge_limits
+
     if controlled is not None and env_id in OVERTAKE_ENVS:
         raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
-    if controlled is not None and env_id in MERGE_ENVS:
-        raise ValueError(MERGE_NOTE.format(env=env_id, what="has one controlled car"))
     config = dict(extra or {})
     if env_id in OVERTAKE_ENVS:
         from envs.highway_overtake import HighwayOvertakeEnv
@@ -124,20 +116,18 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
             inner = config.get("action") or {"type": _default_action(env_id)}
             config["action"] = {"type": "MultiAgentAction", "action_config": dict(inner)}
             config["controlled_vehicles"] = controlled
+        kind = (config.get("action") or {}).get("type") or _default_action(env_id)
+        inner = ((config.get("action") or {}).get("action_config") or {}).get("type") \
+            if kind == "MultiAgentAction" else kind
+        merge_limits(env_class(env_id), env_id, inner == "ContinuousAction", kind == "MultiAgentAction")
     return config
 
 
 def _default_action(env_id: str) -> str:
     """The env's own action type (its class's default config)."""
-    import importlib
+    from guardian.env_checks import env_class
 
-    import gymnasium as gym
-
-    entry = gym.spec(env_id).entry_point
-    if not callable(entry):
-        module, _, name = entry.partition(":")
-        entry = getattr(importlib.import_module(module), name)
-    return entry.default_config()["action"]["type"]
+    return env_class(env_id).default_config()["action"]["type"]
 
 
 def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, action: str | None = None,
@@ -200,10 +190,13 @@ def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, actio
         env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
     except ConfigError:
         raise
-    except Exception as exc:  # highway-env's own failure on a config it cannot take: name the keys given
-        if not env_config:
+    except Exception as exc:  # highway-env's own failure on a config it cannot take: name what was given
+        given = ([f"the config {sorted(env_config)}"] if env_config else []) + \
+            ([f"{controlled} controlled cars"] if controlled is not None else []) + \
+            ([f"{traffic} traffic cars"] if traffic is not None else [])
+        if not given:
             raise
-        raise ConfigError(f"{env_id} cannot be made with the config {sorted(env_config)} given "
+        raise ConfigError(f"{env_id} cannot be made with {' and '.join(given)} "
                           f"({type(exc).__name__}: {exc})") from exc
     if video_dir:  # highway-env's default ratio (2) makes videos play at double speed
         env.unwrapped.update_metadata(video_real_time_ratio=1)

@@ -91,6 +91,7 @@ from guardian.bicycle import BicycleGuardian
 from guardian.config import GuardianConfig
 from guardian.decision import LEVELS
 from guardian.ego import BicycleEgo, RoadMapEgo
+from guardian.env_checks import check_config, merge_limits
 from guardian.errors import ConfigError
 from guardian.monitor import COUNTS as MONITOR_COUNTS, ModelMonitor, no_counts
 from guardian.pointmass import PointMassGuardian
@@ -143,6 +144,15 @@ def _action_kind(base) -> str:
 
 def _multi(base) -> bool:
     return type(base.action_type).__name__ == "MultiAgentAction"
+
+
+def _check_env(base) -> str:
+    """Refuse a config the guardian cannot supervise (``guardian.env_checks``); the action kind."""
+    kind = _action_kind(base)
+    name = base.spec.id if base.spec is not None else type(base).__name__
+    check_config(type(base).default_config(), base.config, f"Guardian: {name}")
+    merge_limits(type(base), name, kind == "ContinuousAction", _multi(base))
+    return kind
 
 
 class _Car:
@@ -214,7 +224,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 raise ConfigError("Guardian: the library was computed for other OvertakeParams than the env's "
                                   "config 'params'; rebuild it with the env's parameters")
         self.library = library
-        self.kind = _action_kind(base)
+        self.kind = _check_env(base)
         self.cars = []              # the guarded cars (_Car), in highway-env's controlled order
         self._attached = None       # the vehicles the hooks sit on
         self._geometry = None       # what the decision objects were built for
@@ -228,7 +238,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
     # ---- attaching to the ego ------------------------------------------------------------------------
     def _build(self, base) -> None:
         """The decision objects and monitors for the env's road, frequencies and action type (re-read)."""
-        self.kind = _action_kind(base)
+        self.kind = _check_env(base)
         self.road = read_road(base)
         self.dt = 1.0 / base.config["simulation_frequency"]
         c = self.config
@@ -282,6 +292,10 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         types = _action_types(base)
         if len(vehicles) != len(types):
             raise ConfigError(f"Guardian: {len(vehicles)} controlled cars but {len(types)} action types")
+        asked = base.config.get("controlled_vehicles")
+        if _multi(base) and asked is not None and asked != len(vehicles):
+            raise ConfigError(f"Guardian: config 'controlled_vehicles' is {asked}, but the env spawned "
+                              f"{len(vehicles)} controlled car(s)")
         self.cars = []
         for i, (vehicle, at) in enumerate(zip(vehicles, types)):
             guard, monitor = self._guards[i]

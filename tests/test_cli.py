@@ -97,7 +97,7 @@ def test_rollout_env_errors(capsys):
     assert main(["rollout", "--env", "nope-v0"]) == 2
     assert "unknown environment 'nope-v0'" in capsys.readouterr().err
     assert main(["rollout", "--env", "highway-v0", "--intention", "aggressive"]) == 2
-    assert "--intention apply to the overtake scenarios" in capsys.readouterr().err
+    assert "--intention applies to the overtake scenarios" in capsys.readouterr().err
     assert main(["rollout", "--traffic", "3"]) == 2  # the two-car env has no traffic
     assert "two cars alone" in capsys.readouterr().err
     assert main(["rollout", "--agent", "all", "--rerun", "x.rrd"]) == 2

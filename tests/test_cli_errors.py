@@ -23,7 +23,7 @@ from guardian.cli import main
 
 WORK = ["guardian.cli.sets.load_library", "guardian.highd.replay.replay", "guardian.highd.generate.generate",
         "guardian.highd.ngsim.convert_ngsim", "itha.highway_experiment.highway_experiment",
-        "itha.processors.processors_experiment"]
+        "itha.processors.processors_experiment", "guardian.rollout.run_episodes"]
 
 
 @pytest.fixture
@@ -72,6 +72,29 @@ REFUSED = [
     ("replay --input-bounds data --u-min -3", "--u-min"), ("replay --scheduler tcp://x:1 --workers 2", "--workers"),
     ("itha highway --set closed-form --cache-dir {DIR}", "--cache-dir"),
     ("itha highway --set closed-form --rebuild", "--rebuild"),
+    ("rollout --env merge-v0 --overapprox ordered", "--overapprox"),
+    ("rollout --env merge-v0 --traffic 4", "--traffic"),
+    ("rollout --env guardian/Merge-v0 --traffic 4", "--traffic"),
+    ("rollout --env exit-v0 --controlled 2 --env-config controlled_vehicles=3", "--controlled"),
+    ("rollout --env exit-v0 --action meta --env-config action={{\"type\":\"ContinuousAction\"}}", "--action"),
+    ("rollout --env exit-v0 --controlled 2 --env-config action={{\"type\":\"ContinuousAction\"}}", "--controlled"),
+    ("rollout --env exit-v0 --traffic 4 --env-config vehicles_count=3", "--traffic"),
+    ("rollout --env guardian/HighwayOvertake-v0 --traffic 4 --env-config traffic_count=2", "--traffic"),
+    # env config values (the key named) and what an env cannot take (the env named)
+    ("rollout --env merge-v0 --env-config policy_frequency=0", "policy_frequency"),
+    ("rollout --env merge-v0 --env-config policy_frequency=-5", "policy_frequency"),
+    ("rollout --env merge-v0 --env-config policy_frequency=abc", "policy_frequency"),
+    ("rollout --env merge-v0 --env-config simulation_frequency=0", "simulation_frequency"),
+    ("rollout --env exit-v0 --env-config duration=abc", "duration"),
+    ("rollout --env exit-v0 --env-config duration=-1", "duration"),
+    ("rollout --env exit-v0 --env-config vehicles_count=-1", "vehicles_count"),
+    ("rollout --env exit-v0 --env-config lanes_count=0", "lanes_count"),
+    ("rollout --env exit-v0 --env-config policy_frequency=10", "policy_frequency"),
+    ("rollout --env guardian/Merge-v0 --env-config neighbour_vehicles_connected_lanes=maybe",
+     "neighbour_vehicles_connected_lanes"),
+    ("rollout --env merge-generic-v0 --controlled 2 --action meta", "merge-generic-v0 has one controlled car"),
+    ("rollout --env merge-generic-v0 --action continuous", "merge-generic-v0 fails with ContinuousAction"),
+    ("rollout --env merge-v0 --env-config action={{\"type\":\"ContinuousAction\"}}", "merge-v0 fails with"),
 ]
 
 
@@ -267,3 +290,39 @@ def test_rcis_build_human_output_shows_every_figure(library, cache_dir, capsys):
     for s in data["sets"].values():
         s.pop("seconds")  # a cached set's build time is shown, but rounded to 0.1 s
     assert [v for v in _figures(data) if not _shown(v, text)] == []
+
+
+@pytest.mark.parametrize("guard", [[], ["--no-guardian"]], ids=["guarded", "unguarded"])
+def test_rollout_human_output_shows_every_figure_of_every_car_and_crash(guard, capsys):
+    argv = ["rollout", "--env", "guardian/Merge-v0", "--agent", "reckless", "--action", "meta", "--controlled", "2",
+            "--env-config", "traffic=hard", "--env-config", "duration=6", "--env-config", "policy_frequency=5",
+            "--episodes", "2", "--seed", "3", *guard]
+    text, data = _human_and_json(argv, capsys)
+    assert len(data["agents"]) == 2 and all(f"car {i}: " in text for i in range(2))
+    if guard:
+        assert data["crashes"] and all(f"car {c['car']} " in text for c in data["crashes"])
+    assert "action=meta" in text.splitlines()[0]
+    assert [v for v in _figures(data) if not _shown(v, text)] == []
+
+
+def test_falsify_human_output_shows_every_figure(monkeypatch, capsys):
+    import guardian.falsify
+
+    counts = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
+              "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
+              "failsafe_steps", "override_steps", "conflict_steps", "unchecked_entries", "reversing_steps",
+              "unsupervised_steps", "traffic_reversing_uncovered_steps", "exceptions")
+    row = lambda group, base: dict({k: base + 7 * i for i, k in enumerate(counts)}, group=group)
+    result = {"episodes": 1001, "seconds": 12.5, "workers": 1, "scheduler": None, "cells": 3, "episodes_per_cell": 1,
+              "totals": row("all", 1001), "by_env": [row("exit-v0 meta", 2001)], "by_agent": [row("hold", 3001)],
+              "by_setting": [row("own config", 4001), row("density 2.5", 5001)],
+              "failures": [{"kind": "unchecked_entries", "count": 6007, "cell": "own config", "command": "guardian x"}]}
+    monkeypatch.setattr(guardian.falsify, "run_campaign", lambda *a, **k: result)
+    argv = ["falsify", "--only", "roads", "--agent", "merge"]
+    assert main(argv) == 1  # the counts above break the promise
+    text = capsys.readouterr().out
+    assert main(argv + ["--json"]) == 1
+    data = json.loads(capsys.readouterr().out)
+    data.pop("seconds")
+    assert [v for v in _figures(data) if not _shown(v, text)] == []
+    assert "density 2.5" in text and "count=6007" in text

@@ -5,9 +5,12 @@ import sys
 
 from guardian.cli.common import emit, progress_bar
 
-COLUMNS = (("episodes", "episodes"), ("collisions", "collisions"), ("ego_at_fault_collisions", "at fault"),
-           ("starts_outside", "starts outside"), ("ego_at_fault_after_outside_starts", "at fault after outside"),
-           ("safety_violations", "exits"), ("failsafe_steps", "fail-safe steps"),
+COLUMNS = (("episodes", "episodes"), ("steps", "steps"), ("collisions", "collisions"),
+           ("ego_at_fault_collisions", "at fault"), ("starts_outside", "starts outside"),
+           ("collisions_after_outside_starts", "collisions after outside"),
+           ("ego_at_fault_after_outside_starts", "at fault after outside"),
+           ("safety_violations", "exits / no self-safe input"), ("failsafe_steps", "fail-safe steps"),
+           ("override_steps", "override steps"), ("conflict_steps", "conflict steps"),
            ("unchecked_entries", "unchecked entries"), ("reversing_steps", "reversing steps"),
            ("unsupervised_steps", "unsupervised"), ("traffic_reversing_uncovered_steps", "uncovered reversals"),
            ("exceptions", "exceptions"))
@@ -19,6 +22,11 @@ def table(rows: list, title: str) -> str:
     widths = [max(len(line[i]) for line in [header, *body]) for i in range(len(header))]
     fmt = lambda line: "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
     return "\n".join([fmt(header), *(fmt(line) for line in body)])
+
+
+def _said(failure: dict) -> str:
+    """What a failure's record says beside its kind and command (cell, fault, rule)."""
+    return ", ".join(f"{k}={v}" for k, v in failure.items() if k not in ("kind", "command"))
 
 
 def promise_broken(result: dict) -> bool:
@@ -51,10 +59,11 @@ def cmd_falsify(args) -> int:
              f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, "
              f"{args.workers} worker(s)", "",
              table([dict(result["totals"], group="all")], "campaign"), "",
-             table(result["by_env"], "environment"), "", table(result["by_agent"], "agent"), ""]
+             table(result["by_env"], "environment"), "", table(result["by_agent"], "agent"), "",
+             table(result["by_setting"], "setting"), ""]
     if result["failures"]:
         lines.append("failures (each replays alone):")
-        lines += [f"  {f['kind']}: {f['command']}" for f in result["failures"]]
+        lines += [f"  {f['kind']} ({_said(f)}): {f['command']}" for f in result["failures"]]
     else:
         lines.append("no failures")
     emit(result, args.json, "\n".join(lines))
@@ -62,7 +71,7 @@ def cmd_falsify(args) -> int:
 
 
 def add_commands(sub) -> None:
-    from guardian.falsify import ROAD_AGENTS, MPC_AGENTS
+    from guardian.falsify import MPC_AGENTS, MULTI_AGENTS, ROAD_AGENTS
 
     p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
     p.add_argument("--episodes", type=int, default=5, help="episodes per cell of the matrix (default 5)")
@@ -71,7 +80,8 @@ def add_commands(sub) -> None:
                    help="only guardian/HighwayOvertake-v0, or only the highway-v0 family (the default matrix is "
                         "both), or the roads beyond one straight segment and several guarded cars (merge-v0, "
                         "merge-generic-v0, exit-v0, guardian/Merge-v0)")
-    p.add_argument("--agent", action="append", choices=ROAD_AGENTS + MPC_AGENTS, default=None,
+    p.add_argument("--agent", action="append", choices=tuple(dict.fromkeys(ROAD_AGENTS + MPC_AGENTS + MULTI_AGENTS)),
+                   default=None,
                    help="only cells of this agent (repeatable)")
     p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")
     p.add_argument("--workers", type=int, default=2, help="local processes (default 2)")

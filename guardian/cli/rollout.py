@@ -55,6 +55,9 @@ def cmd_rollout(args) -> int:
         env_config = env_config_option(args.env, args.env_config or [])
     except ValueError as exc:
         return usage_error(args, str(exc))
+    refused = _conflicts(args, env_config, overtake) or _needs_cars(args, env_config, overtake)
+    if refused:
+        return usage_error(args, refused)
     if overtake and args.ego_speed_min is None and args.env == OVERTAKE_ENV and args.traffic != 0 \
             and env_config.get("traffic_count", 1) != 0:
         args.ego_speed_min = 0.0  # among traffic the ego must be able to wait behind the lead
@@ -99,7 +102,8 @@ def _inapplicable(args, overtake: bool) -> str | None:
         if given or args.ego_speed_min is not None:
             names = [f"--{k.replace('_', '-')}" for k in given] + (["--ego-speed-min"] if args.ego_speed_min is not None
                                                                    else [])
-            return f"{', '.join(names)} apply to the overtake scenarios, not to {args.env}"
+            verb = "applies" if len(names) == 1 else "apply"
+            return f"{', '.join(names)} {verb} to the overtake scenarios, not to {args.env}"
     if args.traffic is not None and args.env != OVERTAKE_ENV and overtake:
         return f"--traffic applies to {OVERTAKE_ENV} and the highway-v0 family; {args.env} has the two cars alone"
     if args.no_guardian and (args.no_intention or args.safe_start):
@@ -117,8 +121,11 @@ def _inapplicable(args, overtake: bool) -> str | None:
 
 def env_config_option(env_id: str, pairs: list) -> dict:
     """``KEY=VALUE`` pairs (values read as JSON, else as text) or JSON objects as the env's config, later
-    ones overriding earlier ones; a key the env does not have is refused with its name."""
-    known = set(_env_class(env_id).default_config())
+    ones overriding earlier ones; a key the env does not have, or a value not of its kind or out of its
+    range (``guardian.env_checks.check_config``), is refused with its name."""
+    from guardian.env_checks import check_config, env_class
+
+    defaults = env_class(env_id).default_config()
     out = {}
     for pair in pairs:
         if pair.lstrip().startswith("{"):
@@ -137,33 +144,80 @@ def env_config_option(env_id: str, pairs: list) -> dict:
             except json.JSONDecodeError:
                 given = {key: text}
         for key, value in given.items():
-            if key not in known:
+            if key not in defaults:
                 raise ValueError(f"--env-config: {env_id} has no config key {key!r}")
             out[key] = value
+    check_config(defaults, out, f"--env-config: {env_id}")
     return out
 
 
-def _env_class(env_id: str):
-    import importlib
+OPTION_KEYS = {"--action": "action", "--controlled": "controlled_vehicles", "--traffic": "vehicles_count"}
 
-    import gymnasium as gym
 
-    entry = gym.spec(env_id).entry_point
-    if callable(entry):
-        return entry
-    module, _, name = entry.partition(":")
-    return getattr(importlib.import_module(module), name)
+def _conflicts(args, env_config: dict, overtake: bool) -> str | None:
+    """An option and an ``--env-config`` key that both set the same thing (one would be dropped)."""
+    keys = dict(OPTION_KEYS, **({"--traffic": "traffic_count"} if overtake else {}))
+    for option, key in keys.items():
+        if getattr(args, option[2:]) is not None and key in env_config:
+            return f"{option} and --env-config {key} set the same thing; give one of them"
+    if args.controlled is not None and "action" in env_config:
+        return "--controlled sets the action (MultiAgentAction of --action); --env-config action does not apply with it"
+    return None
+
+
+def _needs_cars(args, env_config: dict, overtake: bool) -> str | None:
+    """``--traffic`` on an env without a car count, ``--overapprox`` with one guarded car."""
+    from guardian.env_checks import env_class
+
+    if args.traffic is not None and not overtake and "vehicles_count" not in env_class(args.env).default_config():
+        return f"--traffic sets the config vehicles_count; {args.env} has none (its traffic is its own)"
+    cars = args.controlled if args.controlled is not None else env_config.get("controlled_vehicles") or 1
+    if args.overapprox != "trivial" and not overtake and cars < 2:
+        return ("--overapprox chooses how several guarded cars over-approximate each other's lane changes; "
+                "with one guarded car it does not apply (give --controlled N, N >= 2)")
+    return None
+
+
+def _value(v) -> str:
+    if v is None:
+        return "-"
+    return f"{v:.1f}" if isinstance(v, float) else str(v)
+
+
+def _fields(record: dict, skip=()) -> str:
+    """``key=value`` for every scalar of a record; an object's entries as ``key.entry=value``."""
+    out = []
+    for k, v in record.items():
+        if k in skip or isinstance(v, list):
+            continue
+        if isinstance(v, dict):
+            out += [f"{k}.{e}={x:g}" if isinstance(x, float) else f"{k}.{e}={_value(x)}" for e, x in v.items()]
+        else:
+            out.append(f"{k}={_value(v)}")
+    return " ".join(out)
+
+
+def _crash(c: dict) -> str:
+    who = f"car {c['car']} " if c.get("car") is not None else ""
+    partner = c.get("partner") or "-"
+    if c.get("partner_car") is not None:
+        partner += f" (guarded car {c['partner_car']})"
+    blind = c.get("steps_since_traffic_blind")
+    reasons = c.get("reasons") or []
+    return (f"  crash: episode {c['episode']} step {c['step']} {who}fault={c['fault']} ({c['rule']}) "
+            f"partner={partner} start_inside={c['start_inside']} level={c.get('level') or '-'}"
+            + (f" steps_since_traffic_blind={blind}" if blind is not None else "")
+            + (f" reason: {reasons[0]}" + (f" (+{len(reasons) - 1} more)" if len(reasons) > 1 else "")
+               if reasons else ""))
 
 
 def _summary(args, r: dict) -> str:
-    head = " ".join(x for x in (args.env, r.get("intention"), r["agent"], f"guardian={'on' if r['guardian'] else 'off'}")
-                    if x)
-    skip = {"env", "agent", "action", "guardian", "intention_aware", "disturbance", "intention", "crashes", "runs",
-            "agents"}
-    fields = [f"{k}={v:.1f}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in skip]
-    crashes = [f"  crash: episode {c['episode']} step {c['step']} fault={c['fault']} ({c['rule']}) "
-               f"start_inside={c['start_inside']}" for c in r.get("crashes", [])]
-    return "\n".join([head, "  " + " ".join(fields), *crashes])
+    head = " ".join(x for x in (args.env, r.get("intention"), r["agent"], f"action={r['action']}",
+                                f"guardian={'on' if r['guardian'] else 'off'}") if x)
+    skip = {"env", "agent", "action", "guardian", "intention_aware", "disturbance", "intention"}
+    cars = [f"  car {i}: {_fields(a)}" for i, a in enumerate(r.get("agents") or [])]
+    crashes = [_crash(c) for c in r.get("crashes", [])]
+    return "\n".join([head, "  " + _fields(r, skip), *cars, *crashes])
 
 
 def add_commands(sub) -> None:

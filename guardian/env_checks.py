@@ -1,0 +1,120 @@
+"""What the guardian accepts of a highway-env environment's configuration, said once.
+
+Two kinds of limits, each refused with a ``ConfigError`` that names the key and the value:
+
+* **values** (``check_config``): a config key must have the kind of value its class's default has (a
+  number where the default is a number, ``true``/``false`` where it is a boolean, text, a list, an
+  object); the keys whose range matters to a run must lie in it (frequencies and durations positive, a
+  policy step no shorter than a simulation step, car and lane counts whole and not negative). highway-env
+  checks none of this: ``policy_frequency=0`` divides by zero in the guardian, a negative one never ends
+  an episode, and ``"abc"`` fails deep in the first step;
+* **what the env can do** (``merge_limits``): highway-env's ``MergeEnv`` family (``merge-v0/v1``,
+  ``merge-generic-v0``) computes its reward from a discrete action (``action in [0, 2]``) and spawns one
+  ego, so it cannot take continuous actions nor several controlled cars; ``guardian/Merge-v0`` is its
+  road and traffic for both.
+
+The command line (``--env-config``, ``--action``, ``--controlled``) and the ``Guardian`` wrapper (the
+env's config when it is wrapped) ask the same functions.
+"""
+from __future__ import annotations
+
+import math
+from numbers import Real
+
+from guardian.errors import ConfigError
+
+POSITIVE = ("simulation_frequency", "policy_frequency", "duration", "vehicles_density")
+WHOLE = {"vehicles_count": 0, "controlled_vehicles": 1, "lanes_count": 1, "traffic_count": 0,
+         "traffic_from_behind": 0}  # key: the least whole number it may be
+
+MERGE_NOTE = ("highway-env's {env} {what} (MergeEnv: its reward reads a discrete action, `action in [0, 2]`, "
+              "and it spawns one ego); guardian/Merge-v0 is merge-v0's road and traffic for both action types and "
+              "several controlled cars (env config traffic=easy|medium|hard for the merging reference's modes)")
+
+
+def _kind(value) -> str | None:
+    """The kind of a config value a default fixes, or None where any value may do."""
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, Real):
+        return "a number"
+    if isinstance(value, str):
+        return "text"
+    if isinstance(value, (list, tuple)):
+        return "a list"
+    if isinstance(value, dict):
+        return "an object"
+    return None
+
+
+def _is(value, kind: str) -> bool:
+    if kind == "a number":
+        return isinstance(value, Real) and not isinstance(value, bool) and math.isfinite(value)
+    return _kind(value) == kind
+
+
+def check_config(defaults: dict, config: dict, where: str) -> None:
+    """Refuse a value of ``config`` that is not of its default's kind or out of its range (module docstring).
+
+    ``defaults`` is the env class's ``default_config()``; keys it lacks are not checked here (the command
+    line refuses them, an env may read extra keys of its own); ``where`` names the env in the message.
+    """
+    for key, value in config.items():
+        if key not in defaults:
+            continue
+        kind = _kind(defaults[key])
+        if kind is not None and not _is(value, kind):
+            raise ConfigError(f"{where}: config {key!r} must be {kind}, got {value!r}")
+        if key in POSITIVE and value is not None and not (_is(value, "a number") and value > 0):
+            raise ConfigError(f"{where}: config {key!r} must be a positive number, got {value!r}")
+        if key in WHOLE and value is not None and not (isinstance(value, int) and not isinstance(value, bool)
+                                                       and value >= WHOLE[key]):
+            raise ConfigError(f"{where}: config {key!r} must be a whole number >= {WHOLE[key]}, got {value!r}")
+    merged = {**defaults, **config}
+    sim, policy = merged.get("simulation_frequency"), merged.get("policy_frequency")
+    if _is(sim, "a number") and _is(policy, "a number") and sim > 0 and policy > sim:
+        raise ConfigError(f"{where}: config 'policy_frequency' {policy!r} is above 'simulation_frequency' {sim!r}: "
+                          "a policy step would simulate nothing")
+
+
+def env_class(env_id: str):
+    """The class a registered env id makes (its entry point), without making one."""
+    import importlib
+
+    import gymnasium as gym
+
+    entry = gym.spec(env_id).entry_point
+    if callable(entry):
+        return entry
+    module, _, name = entry.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _merge_env_class():
+    from highway_env.envs.merge_env import MergeEnv
+
+    return MergeEnv
+
+
+def discrete_reward(env_class) -> bool:
+    """Whether the env reads its reward from a discrete action: MergeEnv's own ``_rewards``."""
+    merge = _merge_env_class()
+    return issubclass(env_class, merge) and env_class._rewards is merge._rewards
+
+
+def one_ego(env_class) -> bool:
+    """Whether the env spawns one controlled car whatever its config: MergeEnv's own ``_make_vehicles``."""
+    from highway_env.envs.merge_env import MergeGenericEnv
+
+    merge = _merge_env_class()
+    return issubclass(env_class, merge) and env_class._make_vehicles in (merge._make_vehicles,
+                                                                         MergeGenericEnv._make_vehicles)
+
+
+def merge_limits(env_class, env_name: str, continuous: bool, multi_agent: bool) -> None:
+    """Refuse continuous actions or ``MultiAgentAction`` on an env of MergeEnv's family that cannot take
+    them (module docstring; its reward would read a tuple as no lane change), pointing to ``guardian/Merge-v0``."""
+    if continuous and discrete_reward(env_class):
+        raise ConfigError(MERGE_NOTE.format(env=env_name, what="fails with ContinuousAction"))
+    if multi_agent and (one_ego(env_class) or discrete_reward(env_class)):
+        raise ConfigError(MERGE_NOTE.format(env=env_name, what="has one controlled car"))
