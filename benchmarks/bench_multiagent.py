@@ -118,16 +118,23 @@ def cost(n: int, density: str, overapprox: str, episodes: int, seed: int, agent:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--episodes", type=int, default=20)
-    p.add_argument("--cost-episodes", type=int, default=2)
-    p.add_argument("--n", type=int, nargs="+", default=[2, 4, 8])
-    p.add_argument("--density", nargs="+", default=["easy", "medium", "hard"])
-    p.add_argument("--agent", default="merge")
-    p.add_argument("--action", choices=["meta", "continuous"], default="meta")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--no-unguarded", action="store_true")
+    from envs.agents import AGENTS
+    from envs.mpc import STYLES
+    from envs.merge import TRAFFIC_MODES
+    from guardian.cli.common import count
+
+    p.add_argument("--episodes", type=count(1), default=20, help="episodes per setting (default 20)")
+    p.add_argument("--cost-episodes", type=count(0), default=2,
+                   help="episodes of the separate timed run per guarded setting; 0 skips the cost (default 2)")
+    p.add_argument("--n", type=count(2), nargs="+", default=[2, 4, 8], help="guarded cars (default 2 4 8)")
+    p.add_argument("--density", nargs="+", choices=tuple(TRAFFIC_MODES), default=list(TRAFFIC_MODES),
+                   help="the reference's traffic modes (default all three)")
+    p.add_argument("--agent", choices=[a for a in AGENTS if a not in STYLES], default="merge", help="every guarded car's agent (default merge)")
+    p.add_argument("--action", choices=["meta", "continuous"], default="meta", help="action type (default meta)")
+    p.add_argument("--seed", type=count(0), default=0, help="episode i resets with seed SEED + i (default 0)")
+    p.add_argument("--no-unguarded", action="store_true", help="drop the unguarded row of each (N, density)")
     p.add_argument("--v0-search", action="store_true", help="merge-v0's neighbour search (one lane segment)")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the rows as JSON")
     p.add_argument("--merge", nargs="+", metavar="JSON", help="add up the --json outputs of runs in pieces by seed "
                    "(the same agent and action) instead of running")
     args = p.parse_args(argv)

@@ -32,3 +32,13 @@ def test_pieces_of_other_runs_or_the_same_seed_are_refused(bench):
         bench.merge([a, dict(a)])
     other_n = {"agent": "merge", "action": "meta", "seed": 0, "rows": [dict(_row(2, 100.0, 0, 0), n=4)]}
     assert len(bench.merge([a, other_n])["rows"]) == 2  # the same seed in another setting is another piece
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--n", "1"], "whole number >= 2"), (["--density", "jam"], "invalid choice: 'jam'"),
+    (["--agent", "mpc"], "invalid choice: 'mpc'"), (["--episodes", "0"], "whole number >= 1"),
+    (["--seed", "-1"], "whole number >= 0")])
+def test_options_that_cannot_run_are_refused_before_any_episode(bench, argv, says, capsys):
+    with pytest.raises(SystemExit) as stop:
+        bench.main(argv)
+    assert stop.value.code == 2 and says in capsys.readouterr().err
