@@ -94,33 +94,58 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
 
     if controlled is not None and env_id in OVERTAKE_ENVS:
         raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
-    config = dict(extra or {})
+    extra = dict(extra or {})
+    chosen = {}   # what this rollout's own arguments set: never also given in ``extra`` (one would be dropped)
     if env_id in OVERTAKE_ENVS:
         from envs.highway_overtake import HighwayOvertakeEnv
 
-        config.update({"intention": intention or "cautious", "disturbance": disturbance})
+        chosen.update({"intention": intention or "cautious", "disturbance": disturbance})
         if traffic is not None and env_id == OVERTAKE_ENV:
-            config["traffic_count"] = traffic
-            config["traffic_from_behind"] = min(HighwayOvertakeEnv.default_config()["traffic_from_behind"], traffic)
+            chosen["traffic_count"] = traffic
+            if "traffic_from_behind" not in extra:
+                chosen["traffic_from_behind"] = min(HighwayOvertakeEnv.default_config()["traffic_from_behind"], traffic)
         if library is not None:
-            config["initial_region"] = library.region("bounded_velocity")
-            config["params"] = library.params
+            chosen.update({"initial_region": library.region("bounded_velocity"), "params": library.params})
         if action == "meta":
-            config["action"] = dict(ACTIONS["meta"])
+            chosen["action"] = dict(ACTIONS["meta"])
     else:
         if action is not None:
-            config["action"] = dict(ACTIONS[action])
+            chosen["action"] = dict(ACTIONS[action])
         if traffic is not None:
-            config["vehicles_count"] = traffic
+            chosen["vehicles_count"] = traffic
+        if controlled is not None:
+            chosen["controlled_vehicles"] = controlled
+    _refuse_overridden(env_id, extra, chosen)
+    config = {**extra, **chosen}
+    if env_id in OVERTAKE_ENVS:
+        cars = config.get("traffic_count", env_class(env_id).default_config()["traffic_count"])
+        if config.get("traffic_from_behind", 0) > cars:
+            raise ValueError(f"{env_id}: traffic_from_behind={config['traffic_from_behind']} is more than the "
+                             f"{cars} traffic cars (traffic_count)")
+    else:
         if controlled is not None:
             inner = config.get("action") or {"type": _default_action(env_id)}
             config["action"] = {"type": "MultiAgentAction", "action_config": dict(inner)}
-            config["controlled_vehicles"] = controlled
         kind = (config.get("action") or {}).get("type") or _default_action(env_id)
         inner = ((config.get("action") or {}).get("action_config") or {}).get("type") \
             if kind == "MultiAgentAction" else kind
         merge_limits(env_class(env_id), env_id, inner == "ContinuousAction", kind == "MultiAgentAction")
     return config
+
+
+SET_BY = {"intention": "--intention", "disturbance": "--disturbance", "traffic_count": "--traffic",
+          "traffic_from_behind": "--traffic", "vehicles_count": "--traffic", "action": "--action",
+          "controlled_vehicles": "--controlled", "initial_region": "the set library (starts are drawn in its C_bnd)",
+          "params": "the set library's parameters (--ego-speed-min)"}
+
+
+def _refuse_overridden(env_id: str, extra: dict, chosen: dict) -> None:
+    """A config key the rollout sets itself cannot also come in ``extra``: one of the two would be dropped
+    without a word."""
+    clash = [k for k in chosen if k in extra]
+    if clash:
+        key = clash[0]
+        raise ValueError(f"{env_id}: config key {key!r} is set by {SET_BY[key]}; give it there, not in the env config")
 
 
 def _default_action(env_id: str) -> str:

@@ -100,3 +100,36 @@ def test_the_wrapper_refuses_several_cars_where_the_env_spawns_one():
     env.unwrapped.action_type.agents_action_types.pop()
     with pytest.raises(ConfigError, match="'controlled_vehicles' is 2, but the env spawned 1 controlled car"):
         wrapped._attach(env.unwrapped)
+
+
+def test_the_rollout_keeps_the_cars_from_behind_it_was_given():
+    """--traffic 12 --env-config traffic_from_behind=6 once ran with 2 from behind (the default's cap)."""
+    from guardian.rollout import highway_env_config
+
+    config = highway_env_config("guardian/HighwayOvertake-v0", None, "cautious", "random", 12, None,
+                                {"traffic_from_behind": 6, "lanes_count": 3})
+    assert config["traffic_from_behind"] == 6 and config["traffic_count"] == 12
+    assert highway_env_config("guardian/HighwayOvertake-v0", None, "cautious", "random", 1, None, {})[
+        "traffic_from_behind"] == 1
+
+
+@pytest.mark.parametrize("env_id, extra, key", [
+    ("guardian/HighwayOvertake-v0", {"intention": "aggressive"}, "intention"),
+    ("guardian/Overtake-v0", {"disturbance": "adversarial"}, "disturbance"),
+    ("highway-v0", {"vehicles_count": 5}, "vehicles_count")])
+def test_a_key_the_rollout_sets_is_not_also_taken_from_the_config(env_id, extra, key):
+    from guardian.rollout import highway_env_config
+
+    with pytest.raises(ValueError, match=f"'{key}' is set by"):
+        highway_env_config(env_id, None, "cautious", "random", 3 if key == "vehicles_count" else None, None, extra)
+
+
+@pytest.mark.parametrize("env_id, action, config, name", [
+    ("highway-v0", None, {}, "meta"), ("guardian/HighwayOvertake-v0", None, {}, "continuous"),
+    ("exit-v0", None, {"action": {"type": "DiscreteAction"}}, "discrete"), ("exit-v0", "continuous", {}, "continuous"),
+    ("highway-v0", None, {"action": {"type": "MultiAgentAction", "action_config": {"type": "ContinuousAction"}}},
+     "continuous")])
+def test_the_action_reported_is_the_one_that_ran(env_id, action, config, name):
+    from guardian.cli.rollout import action_name
+
+    assert action_name(env_id, action, config) == name

@@ -30,11 +30,15 @@ def cmd_rollout(args) -> int:
     from envs.agents import AGENTS, BASELINES
     from envs.mpc import STYLES
     from guardian.errors import ConfigError
-    from guardian.rollout import OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, highway_rollouts
+    from guardian.rollout import (OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, _refuse_overridden, highway_env_config,
+                                  highway_rollouts)
 
     if args.env not in gym.registry:
         known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "exit", "guardian/")))
         return usage_error(args, f"unknown environment {args.env!r}; ids: {', '.join(known)}")
+    if not _is_highway_env(args.env):
+        return usage_error(args, f"{args.env} is not a highway-env environment; the guardian drives highway-env's "
+                                 f"roads and its own scenarios")
     overtake = args.env in OVERTAKE_ENVS
     refused = _inapplicable(args, overtake)
     if refused:
@@ -58,9 +62,20 @@ def cmd_rollout(args) -> int:
     refused = _conflicts(args, env_config, overtake) or _needs_cars(args, env_config, overtake)
     if refused:
         return usage_error(args, refused)
-    if overtake and args.ego_speed_min is None and args.env == OVERTAKE_ENV and args.traffic != 0 \
-            and env_config.get("traffic_count", 1) != 0:
+    try:  # every key the rollout sets itself, checked before the sets are loaded
+        highway_env_config(args.env, args.action, intentions[0], args.disturbance, args.traffic, None, env_config,
+                           args.controlled)
+        if overtake:
+            _refuse_overridden(args.env, env_config, {"initial_region": None, "params": None})
+    except ValueError as exc:
+        return usage_error(args, str(exc))
+    among_traffic = args.env == OVERTAKE_ENV and args.traffic != 0 and env_config.get("traffic_count", 1) != 0
+    if among_traffic and args.ego_speed_min is None:
         args.ego_speed_min = 0.0  # among traffic the ego must be able to wait behind the lead
+    elif among_traffic and args.ego_speed_min > 0:
+        return usage_error(args, f"--ego-speed-min {args.ego_speed_min:g}: among traffic the ego must be able to "
+                                 f"wait behind the lead; {OVERTAKE_ENV} with traffic takes --ego-speed-min 0 "
+                                 f"(its default there; leave the option out)")
     library = load_library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
     from guardian.config import GuardianConfig
 
@@ -80,7 +95,7 @@ def cmd_rollout(args) -> int:
                                      first_episode=args.first_episode)
             except (ConfigError, ValueError) as exc:
                 return usage_error(args, str(exc))
-            r.update({"env": args.env, "agent": agent, "action": args.action or "default",
+            r.update({"env": args.env, "agent": agent, "action": action_name(args.env, args.action, env_config),
                       "guardian": not args.no_guardian, "controlled": args.controlled or 1,
                       "overapprox": args.overapprox,
                       "intention_aware": overtake and not args.no_guardian and not args.no_intention})
@@ -106,8 +121,19 @@ def _inapplicable(args, overtake: bool) -> str | None:
             return f"{', '.join(names)} {verb} to the overtake scenarios, not to {args.env}"
     if args.traffic is not None and args.env != OVERTAKE_ENV and overtake:
         return f"--traffic applies to {OVERTAKE_ENV} and the highway-v0 family; {args.env} has the two cars alone"
+    if not overtake:
+        library = [name for name, given in (("--iterations", args.iterations is not None), ("--rebuild", args.rebuild),
+                                            ("--cache-dir", args.cache_dir is not None),
+                                            ("--workers", args.workers != 2)) if given]
+        if library:
+            verb = "applies" if len(library) == 1 else "apply"
+            return (f"{', '.join(library)} {verb} to the overtake scenarios' set library; {args.env} uses none "
+                    f"(its guardian reads the road)")
     if args.no_guardian and (args.no_intention or args.safe_start):
-        return "--no-intention and --safe-start change the guardian; they do not apply with --no-guardian"
+        names = [n for n, given in (("--no-intention", args.no_intention), ("--safe-start", args.safe_start)) if given]
+        verb = "changes" if len(names) == 1 else "change"
+        return f"{' and '.join(names)} {verb} the guardian; {'it does' if len(names) == 1 else 'they do'} not apply " \
+               f"with --no-guardian"
     if args.policy is not None and args.agent != "random":
         return "--policy replaces --agent; give one of them"
     if args.algo is not None and args.policy is None:
@@ -117,6 +143,34 @@ def _inapplicable(args, overtake: bool) -> str | None:
     if args.overapprox != "trivial" and (args.no_guardian or overtake):
         return "--overapprox chooses how guarded cars on highway-env's roads over-approximate each other's lane changes"
     return None
+
+
+def _is_highway_env(env_id: str) -> bool:
+    from highway_env.envs.common.abstract import AbstractEnv
+
+    from guardian.env_checks import env_class
+
+    try:
+        cls = env_class(env_id)
+    except Exception:  # noqa: BLE001 - an entry point that cannot be imported is not one we can drive
+        return False
+    return isinstance(cls, type) and issubclass(cls, AbstractEnv)
+
+
+ACTION_NAMES = {"DiscreteMetaAction": "meta", "ContinuousAction": "continuous", "DiscreteAction": "discrete"}
+
+
+def action_name(env_id: str, action: str | None, env_config: dict) -> str:
+    """The action type the rollout ran: ``--action``, else the config's, else the env's own (the inner type
+    under ``MultiAgentAction``)."""
+    from guardian.env_checks import env_class
+
+    if action is not None:
+        return action
+    kind = env_config.get("action") or env_class(env_id).default_config()["action"]
+    if kind.get("type") == "MultiAgentAction":
+        kind = kind.get("action_config") or {}
+    return ACTION_NAMES.get(kind.get("type"), kind.get("type") or "default")
 
 
 def env_config_option(env_id: str, pairs: list) -> dict:
@@ -212,8 +266,12 @@ def _crash(c: dict) -> str:
 
 
 def _summary(args, r: dict) -> str:
+    overtake = "disturbance" in r
     head = " ".join(x for x in (args.env, r.get("intention"), r["agent"], f"action={r['action']}",
-                                f"guardian={'on' if r['guardian'] else 'off'}") if x)
+                                f"guardian={'on' if r['guardian'] else 'off'}",
+                                f"disturbance={r['disturbance']}" if overtake else None,
+                                f"intention_aware={'yes' if r['intention_aware'] else 'no'}" if overtake else None)
+                    if x)
     skip = {"env", "agent", "action", "guardian", "intention_aware", "disturbance", "intention"}
     cars = [f"  car {i}: {_fields(a)}" for i, a in enumerate(r.get("agents") or [])]
     crashes = [_crash(c) for c in r.get("crashes", [])]
@@ -226,7 +284,7 @@ def add_commands(sub) -> None:
     p.add_argument("--env", default="guardian/Overtake-v0",
                    help="guardian/Overtake-v0 (default: the two cars of Section 6.5), guardian/HighwayOvertake-v0 "
                         "(the overtake among traffic), highway-v0, highway-fast-v0, ..., merge-v0, merge-v1, "
-                        "merge-generic-v0, exit-v0, exit-v1, guardian/Merge-v0 (v1: traffic sees across lane "
+                        "merge-generic-v0, merge-generic-v1, exit-v0, exit-v1, guardian/Merge-v0 (v1: traffic sees across lane "
                         "segments)")
     p.add_argument("--agent", default="random",
                    help="random | reckless | idle | merge | mpc | bad | careful | seek | brake_check | oscillate | hold | "
@@ -251,8 +309,9 @@ def add_commands(sub) -> None:
     p.add_argument("--disturbance", choices=["random", "adversarial"], default="random",
                    help="overtake scenarios")
     p.add_argument("--horizon", type=count(1), default=10, help="intention estimator horizon N; overtake scenarios")
-    p.add_argument("--episodes", type=count(1), default=10)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=count(1), default=10, help="episodes per agent and intention (default 10)")
+    p.add_argument("--seed", type=count(0), default=0,
+                   help="episode i resets the env with seed SEED+i, the agent with rng [SEED, i] (default 0)")
     p.add_argument("--first-episode", type=count(0), default=0, metavar="I",
                    help="start at episode I of the seeding rule (env seed SEED+I, agent rng [SEED, I]): "
                         "replays episode I of a longer run alone")
