@@ -23,7 +23,7 @@ from guardian.cli import main
 
 WORK = ["guardian.cli.sets.load_library", "guardian.highd.replay.replay", "guardian.highd.generate.generate",
         "guardian.highd.ngsim.convert_ngsim", "itha.highway_experiment.highway_experiment",
-        "itha.processors.processors_experiment", "guardian.rollout.run_episodes"]
+        "itha.processors.processors_experiment", "guardian.rollout.run_episodes", "guardian.falsify.run_campaign"]
 
 
 @pytest.fixture
@@ -59,6 +59,14 @@ REFUSED = [
     ("highd generate --out {DIR} --recordings 0", "--recordings"),
     ("highd generate --out {DIR} --frame-rate 0", "--frame-rate"),
     ("data convert ngsim {NGSIM} --out {DIR} --main-lanes 0", "--main-lanes"),
+    # seeds are whole numbers >= 0 (numpy's generators refuse negative ones)
+    ("rcis certify --samples 10 --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("itha highway --runs 1 --steps 1 --seed -1 --set closed-form", "argument --seed: must be a whole number >= 0"),
+    ("itha processors --runs 1 --steps 1 --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("highd generate --out {DIR} --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("replay --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("falsify --only roads --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("itha processors --seed 1.5", "argument --seed: must be a whole number >= 0"),
     # output paths that cannot be written
     ("rcis export C_c --out {UNDER_FILE}", "--out"), ("rcis export C_c --out {DIR}", "--out"),
     ("rcis export C_c --out {PROC}", "--out"), ("rcis plot --out {FILE}", "--out"),

@@ -151,7 +151,7 @@ def add_commands(sub) -> None:
     p.add_argument("--out", type=output_folder, required=True, help="the folder the recordings are written to")
     p.add_argument("--recordings", type=count(1), default=1)
     p.add_argument("--minutes", type=positive_number, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--lanes", type=count(1), default=3, help="lanes per carriageway")
     p.add_argument("--frame-rate", type=count(1), default=25, metavar="HZ", help="frames per second (HighD: 25)")
     p.add_argument("--first-id", type=count(1), default=1, help="id of the first recording (NN in the file names)")
@@ -173,7 +173,7 @@ def add_commands(sub) -> None:
                        parents=[out])
     p.add_argument("path", nargs="?", type=existing_path, default=None,
                    help="a folder of recordings or one recording's file (default: the shipped sample)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the 80/20 split")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the 80/20 split")
     p.add_argument("--contexts", action="store_true", help="also calibrate per lane and speed band")
     p.add_argument("--workers", type=count(1), default=None, help="local processes, one recording each (default 1)")
     p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler (instead of --workers)")

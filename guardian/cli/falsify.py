@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from guardian.cli.common import emit, progress_bar
+from guardian.cli.common import count, emit, progress_bar
 
 COLUMNS = (("episodes", "episodes"), ("steps", "steps"), ("collisions", "collisions"),
            ("ego_at_fault_collisions", "at fault"), ("starts_outside", "starts outside"),
@@ -75,7 +75,7 @@ def add_commands(sub) -> None:
 
     p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
     p.add_argument("--episodes", type=int, default=5, help="episodes per cell of the matrix (default 5)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--only", choices=["overtake", "highway", "roads"], default=None,
                    help="only guardian/HighwayOvertake-v0, or only the highway-v0 family (the default matrix is "
                         "both), or the roads beyond one straight segment and several guarded cars (merge-v0, "

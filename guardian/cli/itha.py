@@ -66,7 +66,7 @@ def add_commands(sub) -> None:
                         parents=[out])
     p.add_argument("--runs", type=count(1), default=25)
     p.add_argument("--steps", type=count(1), default=500)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--overapprox", choices=["trivial", "ordered", "both"], default="both")
     p.add_argument("--set", choices=["polyhedral", "closed-form"], default="polyhedral",
                    help="the car-following RCIS: computed by rcis (cached) or its closed form")
@@ -77,7 +77,7 @@ def add_commands(sub) -> None:
     p = isub.add_parser("processors", help="Section 7.4.2: parallel processors, Table 7.1", parents=[out])
     p.add_argument("--runs", type=count(1), default=25)
     p.add_argument("--steps", type=count(1), default=50)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--keep-jobs", type=count(0), default=1,
                    help="jobs a recruiter keeps for itself (0 = (7.9) literally; see the docs)")
     p.set_defaults(func=cmd_itha_processors)

@@ -92,7 +92,7 @@ def add_commands(sub) -> None:
     p = rsub.add_parser("certify", help="falsify invariance by sampling states and disturbances",
                         parents=[library, out])
     p.add_argument("--samples", type=count(1), default=100_000, help="states per set (default 100000)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.set_defaults(func=cmd_rcis_certify, on_interrupt=KEPT)
 
     p = rsub.add_parser("export", help="write one set as JSON pieces A x <= b", parents=[library, out])
