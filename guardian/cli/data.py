@@ -100,7 +100,7 @@ def replay_text(result: dict) -> str:
 
 
 def cmd_replay(args) -> int:
-    from guardian.errors import HighDFormatError
+    from guardian.errors import HighDFormatError, SchedulerError
     from guardian.highd.replay import ReplayConfig, car_following_params, replay, self_safety_overrides
 
     if args.input_bounds == "data" and (args.u_min is not None or args.u_max is not None):
@@ -126,6 +126,8 @@ def cmd_replay(args) -> int:
                         progress=progress_bar("replay"), sensitivity=args.sensitivity, cache=not args.no_cache)
     except (HighDFormatError, ValueError) as exc:
         return usage_error(args, str(exc))
+    except SchedulerError as exc:
+        return usage_error(args, f"--scheduler: {exc}")
     if args.rerun:
         from pathlib import Path
 
