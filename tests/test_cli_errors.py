@@ -74,6 +74,10 @@ REFUSED = [
     ("highd generate --out {PROC}", "--out"), ("data convert ngsim {NGSIM} --out {UNDER_FILE}", "--out"),
     ("replay --rerun {UNDER_FILE}", "--rerun"), ("replay --rerun {DIR}", "--rerun"),
     ("itha highway --rerun {PROC}", "--rerun"),
+    # rcis build's only job is to fill the cache: a cache folder it cannot write is refused
+    ("rcis build --cache-dir {PROC}", "--cache-dir: cannot write into /proc/guardian-test/out"),
+    ("rcis build --cache-dir {FILE}", "--cache-dir"), ("rcis build --cache-dir {UNDER_FILE}", "--cache-dir"),
+    ("rcis build --rebuild --cache-dir {PROC}", "--cache-dir"),
     # missing files
     ("replay {MISSING}", "missing"), ("data convert ngsim {MISSING} --out {DIR}", "missing"),
     # options that do not apply
@@ -124,6 +128,28 @@ def test_an_unwritable_folder_is_refused_for_a_user_without_rights(tmp_path, no_
     locked.mkdir(mode=0o500)
     assert main(["highd", "generate", "--out", str(locked / "out")]) == 2
     assert "cannot write" in capsys.readouterr().err
+
+
+def test_rcis_build_refuses_an_unwritable_default_cache_folder(monkeypatch, no_work, capsys):
+    monkeypatch.setenv("GUARDIAN_CACHE_DIR", "/proc/guardian-test/cache")
+    assert main(["rcis", "build"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "/proc/guardian-test/cache ($GUARDIAN_CACHE_DIR" in err, err
+
+
+def test_commands_that_only_use_the_cache_go_on_without_a_writable_one(monkeypatch, tmp_path):
+    """Only rcis build refuses: the others load the library and may compute it without a cache (one
+    warning, docs/engine.md)."""
+    class Reached(Exception):
+        pass
+
+    def reached(args):
+        raise Reached(str(args.cache_dir))
+
+    monkeypatch.setattr("guardian.cli.sets.load_library", reached)
+    for argv in (["export", "C_c", "--out", str(tmp_path / "c.json")], ["certify"], ["plot", "--out", str(tmp_path)]):
+        with pytest.raises(Reached, match="/proc/guardian-test/cache"):
+            main(["rcis", *argv, "--cache-dir", "/proc/guardian-test/cache"])
 
 
 def test_the_console_script_prints_one_line_too(tmp_path):

@@ -5,13 +5,36 @@ import json
 import sys
 import time
 
-from guardian.cli.common import (emit, json_option, library_options, load_library, output_file, output_folder,
-                                 progress_bar, count)
+from guardian.cli.common import (_writable_folder_error, count, emit, json_option, library_options, load_library,
+                                 output_file, output_folder, progress_bar, usage_error)
 
 KEPT = "finished sets are kept in the cache"
 
 
+def cache_folder_error(args) -> str | None:
+    """Why ``rcis build`` cannot fill its cache folder (``--cache-dir`` or the default), or None.
+
+    The other commands that load the library go on without a cache (one warning); filling the cache is
+    ``rcis build``'s only job, so there an unwritable folder is refused before any set is computed.
+    """
+    import os
+
+    from rcis.cache import default_cache_dir
+
+    folder = args.cache_dir if args.cache_dir is not None else default_cache_dir()
+    bad = _writable_folder_error(folder)
+    if bad is None:
+        return None
+    if args.cache_dir is not None:
+        return f"--cache-dir: cannot write into {folder}: {bad}"
+    source = "$GUARDIAN_CACHE_DIR" if "GUARDIAN_CACHE_DIR" in os.environ else "the default"
+    return f"cannot write into the cache folder {folder} ({source}; choose one with --cache-dir): {bad}"
+
+
 def cmd_rcis_build(args) -> int:
+    bad = cache_folder_error(args)
+    if bad:
+        return usage_error(args, bad)
     t0 = time.perf_counter()
     lib = load_library(args)
     result = {"sets": {n: s.summary() for n, s in lib.sets.items()},
