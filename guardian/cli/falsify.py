@@ -75,7 +75,8 @@ def add_commands(sub) -> None:
 
     p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
     p.add_argument("--episodes", type=count(1), default=5, help="episodes per cell of the matrix (default 5)")
-    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--seed", type=count(0), default=0,
+                   help="cell k's episode i is seeded with SEED + 1000 k + i (default %(default)s)")
     p.add_argument("--only", choices=["overtake", "highway", "roads"], default=None,
                    help="only guardian/HighwayOvertake-v0, or only the highway-v0 family (the default matrix is "
                         "both), or the roads beyond one straight segment and several guarded cars (merge-v0, "
@@ -86,7 +87,8 @@ def add_commands(sub) -> None:
     p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")
     p.add_argument("--workers", type=count(1), default=None, help=f"local processes (default {DEFAULT_WORKERS})")
     p.add_argument("--scheduler", default=None,
-                   help="a Dask scheduler address instead of local processes (instead of --workers)")
+                   help="the address of an existing Dask scheduler (tcp://host:8786) to run on instead of local "
+                        "processes; takes no --workers")
     p.add_argument("--cache-dir", default=None, help="where the overtake sets are cached")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_falsify)

@@ -106,7 +106,7 @@ def cmd_rcis_plot(args) -> int:
 
 def add_commands(sub) -> None:
     rcis = sub.add_parser("rcis", help="robust controlled invariant sets of the overtake scenario")
-    rsub = rcis.add_subparsers(dest="rcis_command", required=True)
+    rsub = rcis.add_commands("rcis_command")
     library, out = library_options(), json_option()
 
     p = rsub.add_parser("build", help="build or load the RCIS library", parents=[library_options(1), out])
@@ -115,7 +115,11 @@ def add_commands(sub) -> None:
     p = rsub.add_parser("certify", help="falsify invariance by sampling states and disturbances",
                         parents=[library, out])
     p.add_argument("--samples", type=count(1), default=100_000, help="states per set (default 100000)")
-    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the samples (default %(default)s)")
+    for action in p._actions:  # certify's --workers: the sets are certified in parallel
+        if "--workers" in action.option_strings:
+            action.help = ("processes certifying the sets in parallel, each set in two seeded halves; a library "
+                           "not in the cache is built with them too (default 2)")
     p.set_defaults(func=cmd_rcis_certify, on_interrupt=KEPT)
 
     p = rsub.add_parser("export", help="write one set as JSON pieces A x <= b", parents=[library, out])
