@@ -83,7 +83,7 @@ REFUSED = [
     # options that do not apply
     ("replay --input-bounds data --u-min -3", "--u-min"), ("replay --scheduler tcp://x:1 --workers 2", "--workers"),
     ("falsify --scheduler tcp://x:1 --workers 2", "--workers"), ("falsify --workers 0", "--workers"),
-    ("falsify --episodes 0", "--episodes"),
+    ("falsify --episodes 0", "--episodes"), ("falsify --agent careful", "--agent"), ("falsify --agent line", "--agent"),
     ("itha highway --set closed-form --cache-dir {DIR}", "--cache-dir"),
     ("itha highway --set closed-form --rebuild", "--rebuild"),
     ("rollout --env merge-v0 --overapprox ordered", "--overapprox"),

@@ -83,7 +83,8 @@ def add_commands(sub) -> None:
                         "merge-generic-v0, exit-v0, guardian/Merge-v0)")
     p.add_argument("--agent", action="append", choices=tuple(dict.fromkeys(ROAD_AGENTS + MPC_AGENTS + MULTI_AGENTS)),
                    default=None,
-                   help="only cells of this agent (repeatable)")
+                   help="only the cells of this agent (repeatable); the choices are the agents the campaign's "
+                        "cells drive")
     p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")
     p.add_argument("--workers", type=count(1), default=None, help=f"local processes (default {DEFAULT_WORKERS})")
     p.add_argument("--scheduler", default=None,
