@@ -27,6 +27,21 @@ def _dist_name(requirement: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
+def _declared(requirements: list) -> set:
+    """The distributions ``requirements`` name, and those their extras bring (``dask[distributed]``:
+    dask, and distributed as dask's metadata lists it for the extra ``distributed``)."""
+    out = set()
+    for requirement in requirements:
+        name = _dist_name(requirement)
+        out.add(name)
+        extras = re.match(r"[^\[;<>=!~ ]*\[([^\]]*)\]", requirement.strip())
+        for extra in (e.strip() for e in (extras.group(1).split(",") if extras else ())):
+            for r in importlib.metadata.requires(name) or ():
+                if re.search(rf"""extra\s*==\s*["']{re.escape(extra)}["']""", r):
+                    out.add(_dist_name(r))
+    return out
+
+
 def _pyproject() -> dict:
     with open(ROOT / "pyproject.toml", "rb") as f:
         return tomllib.load(f)["project"]
@@ -70,8 +85,8 @@ def _distributions(module: str) -> set:
 
 def test_every_imported_distribution_is_declared():
     project = _pyproject()
-    declared = {_dist_name(r) for r in project["dependencies"]}
-    rl = {_dist_name(r) for r in project["optional-dependencies"]["rl"]}
+    declared = _declared(project["dependencies"])
+    rl = _declared(project["optional-dependencies"]["rl"])
     missing = {}
     for module, places in sorted(_third_party_imports().items()):
         dists = _distributions(module)
@@ -124,7 +139,7 @@ def _guarded(node: ast.AST, tree: ast.Module) -> bool:
 
 def test_the_rl_extra_is_imported_only_behind_a_clear_error():
     project = _pyproject()
-    declared = {_dist_name(r) for r in project["dependencies"]}
+    declared = _declared(project["dependencies"])
     rl_only = {_dist_name(r) for r in project["optional-dependencies"]["rl"]} - declared
     assert rl_only == {"stable-baselines3", "torch"}
     seen, bare = [], []
@@ -137,6 +152,11 @@ def test_the_rl_extra_is_imported_only_behind_a_clear_error():
                 bare.append(f"{path}:{node.lineno} imports {module}")
     assert seen, "no import of the rl extra found: the check above would pass vacuously"
     assert bare == [], f"the rl extra imported without an ImportError naming {RL_HINT!r}: {bare}"
+
+
+def test_an_extra_of_a_dependency_declares_what_it_brings():
+    declared = _declared(["dask[distributed]>=2024.1", "numpy>=1.26"])
+    assert {"dask", "distributed", "numpy"} <= declared and "pandas" not in _declared(["dask>=2024.1"])
 
 
 def test_the_check_sees_imports_inside_functions_and_not_in_docstrings():
