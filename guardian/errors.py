@@ -7,6 +7,8 @@ Each subclasses a builtin, so ``except ValueError`` still catches a bad file or 
 * ``HighDFormatError`` (``ValueError``): a HighD-format file is malformed; the message says where;
 * ``ServiceError`` (``Exception``): a refused service request, with the HTTP status a client sees;
 * ``FramingError`` (``Exception``): an HTTP request the service cannot read (answered, then closed);
+* ``SchedulerError`` (``ConnectionError``): no Dask scheduler answers at a ``--scheduler`` address
+  (the message names the address and the reason);
 * ``LPError``, ``StaleCacheError`` (``RuntimeError``): the engine's (``rcis.errors``), re-exported;
 * ``Terminated`` (``KeyboardInterrupt``): SIGTERM, raised by the command line's handler so that a
   job stops as it does on Ctrl-C (finished work kept, nothing half-written).
@@ -37,6 +39,18 @@ class ServiceError(Exception):
         return {"error": self.message, **self.extra}
 
 
+class SchedulerError(ConnectionError):
+    """No Dask scheduler answers at ``address`` (malformed, nothing listening, timed out): ``reason`` says which."""
+
+    def __init__(self, address: str, reason: str):
+        super().__init__(f"cannot reach the Dask scheduler at {address} ({reason})")
+        self.address = address
+        self.reason = reason
+
+    def __reduce__(self):
+        return type(self), (self.address, self.reason)
+
+
 class Terminated(KeyboardInterrupt):
     """The process received SIGTERM; handled like Ctrl-C."""
 
@@ -50,5 +64,5 @@ class FramingError(Exception):
         self.message = message
 
 
-__all__ = ["ConfigError", "FramingError", "HighDFormatError", "LPError", "ServiceError", "StaleCacheError",
-           "Terminated"]
+__all__ = ["ConfigError", "FramingError", "HighDFormatError", "LPError", "SchedulerError", "ServiceError",
+           "StaleCacheError", "Terminated"]

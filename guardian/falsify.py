@@ -37,6 +37,7 @@ import json
 import shlex
 import time
 import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 OVERTAKE_ENV = "guardian/HighwayOvertake-v0"
@@ -227,7 +228,7 @@ class Campaign:
                 for key, row in sorted(self.rows.items()) if key[0] == kind]
 
 
-def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int = 1, scheduler: str | None = None,
+def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None = 1, scheduler: str | None = None,
                  cache_dir=None, progress=None) -> dict:
     """Run ``episodes`` episodes of every cell; cell ``k`` episode ``i`` has seed ``seed + 1000 k + i``.
 
@@ -238,9 +239,10 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int = 1, sc
         Episodes per cell.
     seed : int
     workers : int
-        Local processes (1: in this process).
+        Local processes (1: in this process); unused (None in the result) with ``scheduler``.
     scheduler : str, optional
-        A Dask scheduler's address instead of local processes.
+        A Dask scheduler's address instead of local processes; connected to before any work (the sets
+        included), ``guardian.errors.SchedulerError`` if no scheduler answers there.
     cache_dir : path, optional
         The set cache the workers load the overtake libraries from.
     progress : callable, optional
@@ -255,17 +257,18 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int = 1, sc
     jobs = [(cell, [seed + 1000 * k + i for i in range(start, min(start + CHUNK, episodes))])
             for k, cell in enumerate(cells) for start in range(0, episodes, CHUNK)]
     total = sum(len(s) for _, s in jobs)
-    if any(c.env == OVERTAKE_ENV for c in cells):  # build the sets once, before the workers need them
-        for traffic in {c.traffic for c in cells if c.env == OVERTAKE_ENV}:
-            _library(traffic, str(cache_dir) if cache_dir else None)
     cache = str(cache_dir) if cache_dir else None
-    camp, done, t0 = Campaign(), 0, time.perf_counter()
-    for cell, results in _run_jobs(jobs, workers, scheduler, cache):
-        for s, r in results:
-            camp.add(cell, s, r)
-        done += len(results)
-        if progress:
-            progress(done, total)
+    with _client(scheduler) as client:  # connected first: an unreachable scheduler is refused before any work
+        if any(c.env == OVERTAKE_ENV for c in cells):  # build the sets once, before the workers need them
+            for traffic in {c.traffic for c in cells if c.env == OVERTAKE_ENV}:
+                _library(traffic, cache)
+        camp, done, t0 = Campaign(), 0, time.perf_counter()
+        for cell, results in _run_jobs(jobs, workers, client, cache):
+            for s, r in results:
+                camp.add(cell, s, r)
+            done += len(results)
+            if progress:
+                progress(done, total)
     return {"episodes": camp.episodes, "seconds": round(time.perf_counter() - t0, 1), "workers": workers,
             "scheduler": scheduler, "cells": len(cells), "episodes_per_cell": episodes,
             "totals": camp.table("all")[0] if camp.episodes else {}, "by_env": camp.table("env"),
@@ -276,14 +279,25 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int = 1, sc
 CHUNK = 5  # episodes per job: few enough to balance the workers, many enough to reuse a loaded library
 
 
-def _run_jobs(jobs, workers: int, scheduler: str | None, cache):
-    if scheduler:
-        from dask.distributed import Client, as_completed
+@contextmanager
+def _client(scheduler: str | None):
+    """The Dask client of ``scheduler`` (``SchedulerError`` if none answers there), or None."""
+    if scheduler is None:
+        yield None
+        return
+    from guardian.scheduler import client
 
-        with Client(scheduler) as client:
-            futures = {client.submit(_chunk, cell, seeds, cache, pure=False): cell for cell, seeds in jobs}
-            for fut in as_completed(futures):
-                yield futures[fut], fut.result()
+    with client(scheduler) as c:
+        yield c
+
+
+def _run_jobs(jobs, workers: int, client, cache):
+    if client is not None:
+        from dask.distributed import as_completed
+
+        futures = {client.submit(_chunk, cell, seeds, cache, pure=False): cell for cell, seeds in jobs}
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
         return
     if workers <= 1:
         for cell, seeds in jobs:

@@ -89,15 +89,21 @@ def test_an_unwritable_cache_folder_warns_once_and_the_product_goes_on(tmp_path,
 
 
 def test_the_cli_builds_with_a_cache_dir_that_is_a_file(tmp_path, capsys):
+    """A command that uses the sets computes them without a cache (one warning); ``rcis build``, whose only
+    job is to fill the cache, refuses it before any work (one line, exit 2)."""
+    import json
+
     from guardian.cli import main
 
     blocker = tmp_path / "f"
     blocker.write_text("x")
-    import json
+    assert main(["rcis", "build", "--iterations", "1", "--cache-dir", str(blocker), "--json"]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.count("\n") == 1 and f"--cache-dir: cannot write into {blocker}" in out.err
 
-    code = main(["rcis", "build", "--iterations", "1", "--cache-dir", str(blocker), "--json"])
+    code = main(["rcis", "export", "C_c", "--out", str(tmp_path / "c.json"), "--iterations", "1",
+                 "--cache-dir", str(blocker), "--json"])
     out = capsys.readouterr()
     data = json.loads(out.out)  # a result, not a traceback
-    assert code == 0
-    assert not any(s["from_cache"] for s in data["sets"].values())
+    assert code == 0 and data["name"] == "cautious" and data["pieces"] > 0
     assert out.err.count("cannot write the cache folder") == 1

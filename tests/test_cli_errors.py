@@ -23,7 +23,7 @@ from guardian.cli import main
 
 WORK = ["guardian.cli.sets.load_library", "guardian.highd.replay.replay", "guardian.highd.generate.generate",
         "guardian.highd.ngsim.convert_ngsim", "itha.highway_experiment.highway_experiment",
-        "itha.processors.processors_experiment", "guardian.rollout.run_episodes"]
+        "itha.processors.processors_experiment", "guardian.rollout.run_episodes", "guardian.falsify.run_campaign"]
 
 
 @pytest.fixture
@@ -59,6 +59,14 @@ REFUSED = [
     ("highd generate --out {DIR} --recordings 0", "--recordings"),
     ("highd generate --out {DIR} --frame-rate 0", "--frame-rate"),
     ("data convert ngsim {NGSIM} --out {DIR} --main-lanes 0", "--main-lanes"),
+    # seeds are whole numbers >= 0 (numpy's generators refuse negative ones)
+    ("rcis certify --samples 10 --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("itha highway --runs 1 --steps 1 --seed -1 --set closed-form", "argument --seed: must be a whole number >= 0"),
+    ("itha processors --runs 1 --steps 1 --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("highd generate --out {DIR} --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("replay --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("falsify --only roads --seed -1", "argument --seed: must be a whole number >= 0"),
+    ("itha processors --seed 1.5", "argument --seed: must be a whole number >= 0"),
     # output paths that cannot be written
     ("rcis export C_c --out {UNDER_FILE}", "--out"), ("rcis export C_c --out {DIR}", "--out"),
     ("rcis export C_c --out {PROC}", "--out"), ("rcis plot --out {FILE}", "--out"),
@@ -66,10 +74,16 @@ REFUSED = [
     ("highd generate --out {PROC}", "--out"), ("data convert ngsim {NGSIM} --out {UNDER_FILE}", "--out"),
     ("replay --rerun {UNDER_FILE}", "--rerun"), ("replay --rerun {DIR}", "--rerun"),
     ("itha highway --rerun {PROC}", "--rerun"),
+    # rcis build's only job is to fill the cache: a cache folder it cannot write is refused
+    ("rcis build --cache-dir {PROC}", "--cache-dir: cannot write into /proc/guardian-test/out"),
+    ("rcis build --cache-dir {FILE}", "--cache-dir"), ("rcis build --cache-dir {UNDER_FILE}", "--cache-dir"),
+    ("rcis build --rebuild --cache-dir {PROC}", "--cache-dir"),
     # missing files
     ("replay {MISSING}", "missing"), ("data convert ngsim {MISSING} --out {DIR}", "missing"),
     # options that do not apply
     ("replay --input-bounds data --u-min -3", "--u-min"), ("replay --scheduler tcp://x:1 --workers 2", "--workers"),
+    ("falsify --scheduler tcp://x:1 --workers 2", "--workers"), ("falsify --workers 0", "--workers"),
+    ("falsify --episodes 0", "--episodes"), ("falsify --agent careful", "--agent"), ("falsify --agent line", "--agent"),
     ("itha highway --set closed-form --cache-dir {DIR}", "--cache-dir"),
     ("itha highway --set closed-form --rebuild", "--rebuild"),
     ("rollout --env merge-v0 --overapprox ordered", "--overapprox"),
@@ -124,6 +138,28 @@ def test_an_unwritable_folder_is_refused_for_a_user_without_rights(tmp_path, no_
     locked.mkdir(mode=0o500)
     assert main(["highd", "generate", "--out", str(locked / "out")]) == 2
     assert "cannot write" in capsys.readouterr().err
+
+
+def test_rcis_build_refuses_an_unwritable_default_cache_folder(monkeypatch, no_work, capsys):
+    monkeypatch.setenv("GUARDIAN_CACHE_DIR", "/proc/guardian-test/cache")
+    assert main(["rcis", "build"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "/proc/guardian-test/cache ($GUARDIAN_CACHE_DIR" in err, err
+
+
+def test_commands_that_only_use_the_cache_go_on_without_a_writable_one(monkeypatch, tmp_path):
+    """Only rcis build refuses: the others load the library and may compute it without a cache (one
+    warning, docs/engine.md)."""
+    class Reached(Exception):
+        pass
+
+    def reached(args):
+        raise Reached(str(args.cache_dir))
+
+    monkeypatch.setattr("guardian.cli.sets.load_library", reached)
+    for argv in (["export", "C_c", "--out", str(tmp_path / "c.json")], ["certify"], ["plot", "--out", str(tmp_path)]):
+        with pytest.raises(Reached, match="/proc/guardian-test/cache"):
+            main(["rcis", *argv, "--cache-dir", "/proc/guardian-test/cache"])
 
 
 def test_the_console_script_prints_one_line_too(tmp_path):

@@ -20,8 +20,8 @@ def test_every_error_is_importable_from_guardian_errors():
 
     assert all(issubclass(c, BaseException) for c in (ConfigError, HighDFormatError, LPError, ServiceError,
                                                        StaleCacheError))
-    assert set(guardian.errors.__all__) == {"ConfigError", "FramingError", "HighDFormatError", "LPError", "ServiceError",
-                                            "StaleCacheError", "Terminated"}
+    assert set(guardian.errors.__all__) == {"ConfigError", "FramingError", "HighDFormatError", "LPError", "SchedulerError",
+                                            "ServiceError", "StaleCacheError", "Terminated"}
     assert guardian.errors.LPError is rcis.errors.LPError
     assert guardian.errors.StaleCacheError is rcis.errors.StaleCacheError
 

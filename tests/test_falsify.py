@@ -130,3 +130,36 @@ def test_the_campaign_fails_on_an_exit_after_a_start_inside_not_on_one_after_a_s
     assert promise_broken(dict(clean, failures=[{"kind": "safe-set exit"}]))
     for k in ("ego_at_fault_collisions", "unchecked_entries", "reversing_steps", "unsupervised_steps"):
         assert promise_broken({"totals": dict(clean["totals"], **{k: 1}), "failures": []}), k
+
+
+def _falsify_agent_choices() -> set:
+    import argparse
+
+    from guardian.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return set(next(a for a in sub.choices["falsify"]._actions if "--agent" in a.option_strings).choices)
+
+
+def test_agent_choices_are_exactly_the_agents_the_cells_drive():
+    driven = {c.agent for only in (None, "overtake", "highway", "roads") for guarded in (True, False)
+              for c in matrix(guardian=guarded, only=only)}
+    assert _falsify_agent_choices() == driven
+
+
+def test_the_docs_name_the_agent_choices_and_the_agents_refused():
+    """docs/cli.md: "--agent ... takes the agents the campaign's cells drive: ...; the other agents ... are refused"."""
+    import re
+    from pathlib import Path
+
+    from envs.agents import AGENTS
+
+    text = " ".join((Path(__file__).resolve().parents[1] / "docs" / "cli.md").read_text().split())
+    sentence = re.search(r"`--agent` \(repeatable\)[^.]*?takes the agents the campaign's cells drive: (.*?) drive no "
+                         r"cell and are refused\.", text)
+    assert sentence, "docs/cli.md no longer says which agents falsify --agent takes"
+    driven, _, refused = sentence.group(1).partition("the other agents")
+    named = lambda part: {w for w in re.findall(r"`([a-z_]+)`", part) if w in AGENTS}
+    choices = _falsify_agent_choices()
+    assert named(driven) == choices
+    assert named(refused) == set(AGENTS) - choices - {"all"}

@@ -15,9 +15,28 @@ from guardian.cli.common import Parser
 from guardian.errors import Terminated
 
 
+DESCRIPTION = ("The guardian command line: a correct-by-construction safety supervisor for highway driving "
+               "(robust controlled invariant sets, intention estimation, inter-triggering hybrid automata).")
+
+
+def version() -> str:
+    """The installed distribution's version, else the package's ``__version__``."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("guardian")
+    except PackageNotFoundError:
+        import guardian
+
+        return getattr(guardian, "__version__", "unknown")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = Parser(prog="guardian", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = Parser(prog="guardian", description=DESCRIPTION)
+    parser.add_argument("--version", action="version", version=f"guardian {version()}",
+                        help="print guardian's version and exit")
+    sub = parser.add_commands("command")
     for group in (sets, rollout, falsify, itha, data, serve):
         group.add_commands(sub)
     return parser

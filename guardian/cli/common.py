@@ -15,19 +15,39 @@ import tempfile
 from pathlib import Path
 
 
+COMMAND = "COMMAND"  # the metavar of every group's sub-commands
+_REQUIRED = "the following arguments are required: "
+
+
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors (``guardian rcis build: argument --workers: ...``, exit 2).
 
     Every parser records its ``prog`` as the default ``_prog``, so a command knows its own name
-    (the deepest sub-command's wins).
+    (the deepest sub-command's wins). A group named without its sub-command says which there are
+    (``guardian rcis: choose one of build, certify, export, plot``), not the internal name of the slot.
     """
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.set_defaults(_prog=self.prog)
 
+    def add_commands(self, dest: str):
+        """The required sub-commands of this group (``dest`` holds the name chosen; shown as COMMAND)."""
+        return self.add_subparsers(dest=dest, required=True, metavar=COMMAND, title="commands")
+
     def error(self, message):
-        self.exit(2, f"{self.prog}: {message}\n")
+        self.exit(2, f"{self.prog}: {self._readable(message)}\n")
+
+    def _readable(self, message: str) -> str:
+        subs = [a for a in self._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subs or not message.startswith(_REQUIRED):
+            return message
+        missing = message[len(_REQUIRED):].split(", ")
+        if COMMAND not in missing:
+            return message
+        rest = [m for m in missing if m != COMMAND]
+        return (f"choose one of {', '.join(subs[0].choices)} ({self.prog} --help says what each does)"
+                + (f"; {_REQUIRED}{', '.join(rest)}" if rest else ""))
 
 
 def usage_error(args, message: str) -> int:

@@ -100,7 +100,7 @@ def replay_text(result: dict) -> str:
 
 
 def cmd_replay(args) -> int:
-    from guardian.errors import HighDFormatError
+    from guardian.errors import HighDFormatError, SchedulerError
     from guardian.highd.replay import ReplayConfig, car_following_params, replay, self_safety_overrides
 
     if args.input_bounds == "data" and (args.u_min is not None or args.u_max is not None):
@@ -126,6 +126,8 @@ def cmd_replay(args) -> int:
                         progress=progress_bar("replay"), sensitivity=args.sensitivity, cache=not args.no_cache)
     except (HighDFormatError, ValueError) as exc:
         return usage_error(args, str(exc))
+    except SchedulerError as exc:
+        return usage_error(args, f"--scheduler: {exc}")
     if args.rerun:
         from pathlib import Path
 
@@ -145,35 +147,41 @@ def cmd_replay(args) -> int:
 def add_commands(sub) -> None:
     out = json_option()
     hd = sub.add_parser("highd", help="HighD-format data")
-    hsub = hd.add_subparsers(dest="highd_command", required=True)
+    hsub = hd.add_commands("highd_command")
     p = hsub.add_parser("generate", help="write simulated HighD-format recordings (both carriageways, 25 Hz by default)",
                         parents=[out])
     p.add_argument("--out", type=output_folder, required=True, help="the folder the recordings are written to")
-    p.add_argument("--recordings", type=count(1), default=1)
-    p.add_argument("--minutes", type=positive_number, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--recordings", type=count(1), default=1,
+                   help="how many recordings, numbered from --first-id (default %(default)s)")
+    p.add_argument("--minutes", type=positive_number, default=1.0,
+                   help="length of each recording in minutes (default %(default)s)")
+    p.add_argument("--seed", type=count(0), default=0,
+                   help="recording k is seeded with [SEED, k] (default %(default)s)")
     p.add_argument("--lanes", type=count(1), default=3, help="lanes per carriageway")
     p.add_argument("--frame-rate", type=count(1), default=25, metavar="HZ", help="frames per second (HighD: 25)")
     p.add_argument("--first-id", type=count(1), default=1, help="id of the first recording (NN in the file names)")
     p.set_defaults(func=cmd_highd_generate, on_interrupt="the recordings written so far are complete")
     data = sub.add_parser("data", help="convert other trajectory data to HighD format")
-    dsub = data.add_subparsers(dest="data_command", required=True)
+    dsub = data.add_commands("data_command")
     conv = dsub.add_parser("convert", help="convert a file")
-    csub = conv.add_subparsers(dest="convert_format", required=True)
+    csub = conv.add_commands("convert_format")
     p = csub.add_parser("ngsim", help="NGSIM US-101 / I-80 trajectories (txt or CSV export) to a HighD recording",
                         parents=[out])
-    p.add_argument("file", type=existing_path)
+    p.add_argument("file", type=existing_path,
+                   help="the NGSIM trajectory file (the .txt as published, or the CSV export)")
     p.add_argument("--out", type=output_folder, required=True, help="the folder the recording is written to")
     p.add_argument("--main-lanes", type=count(1), default=None,
                    help="lanes 1..K are the main line (I-80: 6, US-101: 5) and higher lane ids, ramps, are "
                         "dropped (default: keep every lane)")
-    p.add_argument("--recording-id", type=count(1), default=1)
+    p.add_argument("--recording-id", type=count(1), default=1,
+                   help="the recording's id, written into the meta files and the file names (NN_tracks.csv; "
+                        "default %(default)s)")
     p.set_defaults(func=cmd_data_convert_ngsim)
     p = sub.add_parser("replay", help="override rates of the ITHA guardian on HighD-format data (Table 7.2)",
                        parents=[out])
     p.add_argument("path", nargs="?", type=existing_path, default=None,
                    help="a folder of recordings or one recording's file (default: the shipped sample)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the 80/20 split")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the 80/20 split")
     p.add_argument("--contexts", action="store_true", help="also calibrate per lane and speed band")
     p.add_argument("--workers", type=count(1), default=None, help="local processes, one recording each (default 1)")
     p.add_argument("--scheduler", default=None, help="address of an existing Dask scheduler (instead of --workers)")
@@ -181,7 +189,9 @@ def add_commands(sub) -> None:
     p.add_argument("--h-min", type=positive_number, default=2.0, help="safe headway, bumper to bumper (m)")
     p.add_argument("--u-min", type=number, default=None, help="ego input bound U (m/s^2; default -6, below 0)")
     p.add_argument("--u-max", type=number, default=None, help="(m/s^2; default 4, above 0)")
-    p.add_argument("--v-max", type=positive_number, default=60.0)
+    p.add_argument("--v-max", type=positive_number, default=60.0,
+                   help="the model's top speed (m/s): a recording with a faster vehicle is refused, naming it "
+                        "(default %(default)g)")
     p.add_argument("--input-bounds", choices=["fixed", "data"], default="fixed",
                    help="U from --u-min/--u-max, or the training inputs' quantiles (per context with --contexts)")
     p.add_argument("--rerun", type=output_file, default=None,

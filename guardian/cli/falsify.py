@@ -1,9 +1,9 @@
 """``guardian falsify``: the falsification campaign (``guardian.falsify``) and its table."""
 from __future__ import annotations
 
-import sys
+from guardian.cli.common import count, emit, progress_bar, usage_error
 
-from guardian.cli.common import emit, progress_bar
+DEFAULT_WORKERS = 2
 
 COLUMNS = (("episodes", "episodes"), ("steps", "steps"), ("collisions", "collisions"),
            ("ego_at_fault_collisions", "at fault"), ("starts_outside", "starts outside"),
@@ -39,25 +39,25 @@ def promise_broken(result: dict) -> bool:
 
 
 def cmd_falsify(args) -> int:
+    from guardian.errors import SchedulerError
     from guardian.falsify import matrix, run_campaign
 
-    if args.episodes < 1:
-        print(f"guardian falsify: --episodes must be at least 1, got {args.episodes}", file=sys.stderr)
-        return 2
-    if args.workers < 1:
-        print(f"guardian falsify: --workers must be at least 1, got {args.workers}", file=sys.stderr)
-        return 2
+    if args.scheduler and args.workers is not None:
+        return usage_error(args, "--workers does not apply with --scheduler (the Dask cluster has its own workers)")
+    workers = None if args.scheduler else DEFAULT_WORKERS if args.workers is None else args.workers
     cells = matrix(guardian=not args.no_guardian, only=args.only)
     if args.agent:
         cells = [c for c in cells if c.agent in args.agent]
         if not cells:
-            print(f"guardian falsify: no cell drives agent(s) {', '.join(args.agent)}", file=sys.stderr)
-            return 2
-    result = run_campaign(cells, args.episodes, args.seed, args.workers, args.scheduler, args.cache_dir,
-                          progress_bar("falsify"))
+            return usage_error(args, f"no cell drives agent(s) {', '.join(args.agent)}")
+    try:
+        result = run_campaign(cells, args.episodes, args.seed, workers, args.scheduler, args.cache_dir,
+                              progress_bar("falsify"))
+    except SchedulerError as exc:
+        return usage_error(args, f"--scheduler: {exc}")
+    spread = f"on the Dask scheduler {args.scheduler}" if args.scheduler else f"{workers} worker(s)"
     lines = [f"{result['episodes']} episodes ({result['cells']} cells x {args.episodes}), "
-             f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, "
-             f"{args.workers} worker(s)", "",
+             f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, {spread}", "",
              table([dict(result["totals"], group="all")], "campaign"), "",
              table(result["by_env"], "environment"), "", table(result["by_agent"], "agent"), "",
              table(result["by_setting"], "setting"), ""]
@@ -74,18 +74,22 @@ def add_commands(sub) -> None:
     from guardian.falsify import MPC_AGENTS, MULTI_AGENTS, ROAD_AGENTS
 
     p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
-    p.add_argument("--episodes", type=int, default=5, help="episodes per cell of the matrix (default 5)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--episodes", type=count(1), default=5, help="episodes per cell of the matrix (default 5)")
+    p.add_argument("--seed", type=count(0), default=0,
+                   help="cell k's episode i is seeded with SEED + 1000 k + i (default %(default)s)")
     p.add_argument("--only", choices=["overtake", "highway", "roads"], default=None,
                    help="only guardian/HighwayOvertake-v0, or only the highway-v0 family (the default matrix is "
                         "both), or the roads beyond one straight segment and several guarded cars (merge-v0, "
                         "merge-generic-v0, exit-v0, guardian/Merge-v0)")
     p.add_argument("--agent", action="append", choices=tuple(dict.fromkeys(ROAD_AGENTS + MPC_AGENTS + MULTI_AGENTS)),
                    default=None,
-                   help="only cells of this agent (repeatable)")
+                   help="only the cells of this agent (repeatable); the choices are the agents the campaign's "
+                        "cells drive")
     p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")
-    p.add_argument("--workers", type=int, default=2, help="local processes (default 2)")
-    p.add_argument("--scheduler", default=None, help="a Dask scheduler address instead of local processes")
+    p.add_argument("--workers", type=count(1), default=None, help=f"local processes (default {DEFAULT_WORKERS})")
+    p.add_argument("--scheduler", default=None,
+                   help="the address of an existing Dask scheduler (tcp://host:8786) to run on instead of local "
+                        "processes; takes no --workers")
     p.add_argument("--cache-dir", default=None, help="where the overtake sets are cached")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=cmd_falsify)

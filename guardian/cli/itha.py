@@ -61,13 +61,16 @@ def cmd_itha_processors(args) -> int:
 def add_commands(sub) -> None:
     out = json_option()
     itha = sub.add_parser("itha", help="inter-triggering hybrid automata experiments (Chapter 7)")
-    isub = itha.add_subparsers(dest="itha_command", required=True)
+    isub = itha.add_commands("itha_command")
     p = isub.add_parser("highway", help="Section 7.4.1: the responsible ego on a 5-lane highway with IDM traffic",
                         parents=[out])
-    p.add_argument("--runs", type=count(1), default=25)
-    p.add_argument("--steps", type=count(1), default=500)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--overapprox", choices=["trivial", "ordered", "both"], default="both")
+    p.add_argument("--runs", type=count(1), default=25,
+                   help="episodes per over-approximation, the same traffic for each (default %(default)s)")
+    p.add_argument("--steps", type=count(1), default=500, help="steps per episode (default %(default)s)")
+    p.add_argument("--seed", type=count(0), default=0, help="run r is seeded with [SEED, r] (default %(default)s)")
+    p.add_argument("--overapprox", choices=["trivial", "ordered", "both"], default="both",
+                   help="how the ego over-approximates the other cars' lane changes: trivial (7.6), ordered "
+                        "(Algorithm 1, Example 8's order) or both, compared (default %(default)s)")
     p.add_argument("--set", choices=["polyhedral", "closed-form"], default="polyhedral",
                    help="the car-following RCIS: computed by rcis (cached) or its closed form")
     p.add_argument("--cache-dir", type=Path, default=None, help="where the polyhedral set is cached")
@@ -75,9 +78,10 @@ def add_commands(sub) -> None:
     p.add_argument("--rerun", type=output_file, default=None, help="record run 0 of each over-approximation (.rrd)")
     p.set_defaults(func=cmd_itha_highway, on_interrupt="a computed set is kept in the cache")
     p = isub.add_parser("processors", help="Section 7.4.2: parallel processors, Table 7.1", parents=[out])
-    p.add_argument("--runs", type=count(1), default=25)
-    p.add_argument("--steps", type=count(1), default=50)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runs", type=count(1), default=25,
+                   help="episodes per estimate, the same graphs, queues and arrivals for each (default %(default)s)")
+    p.add_argument("--steps", type=count(1), default=50, help="steps per episode (default %(default)s)")
+    p.add_argument("--seed", type=count(0), default=0, help="run r is seeded with [SEED, r] (default %(default)s)")
     p.add_argument("--keep-jobs", type=count(0), default=1,
                    help="jobs a recruiter keeps for itself (0 = (7.9) literally; see the docs)")
     p.set_defaults(func=cmd_itha_processors)

@@ -5,13 +5,36 @@ import json
 import sys
 import time
 
-from guardian.cli.common import (emit, json_option, library_options, load_library, output_file, output_folder,
-                                 progress_bar, count)
+from guardian.cli.common import (_writable_folder_error, count, emit, json_option, library_options, load_library,
+                                 output_file, output_folder, progress_bar, usage_error)
 
 KEPT = "finished sets are kept in the cache"
 
 
+def cache_folder_error(args) -> str | None:
+    """Why ``rcis build`` cannot fill its cache folder (``--cache-dir`` or the default), or None.
+
+    The other commands that load the library go on without a cache (one warning); filling the cache is
+    ``rcis build``'s only job, so there an unwritable folder is refused before any set is computed.
+    """
+    import os
+
+    from rcis.cache import default_cache_dir
+
+    folder = args.cache_dir if args.cache_dir is not None else default_cache_dir()
+    bad = _writable_folder_error(folder)
+    if bad is None:
+        return None
+    if args.cache_dir is not None:
+        return f"--cache-dir: cannot write into {folder}: {bad}"
+    source = "$GUARDIAN_CACHE_DIR" if "GUARDIAN_CACHE_DIR" in os.environ else "the default"
+    return f"cannot write into the cache folder {folder} ({source}; choose one with --cache-dir): {bad}"
+
+
 def cmd_rcis_build(args) -> int:
+    bad = cache_folder_error(args)
+    if bad:
+        return usage_error(args, bad)
     t0 = time.perf_counter()
     lib = load_library(args)
     result = {"sets": {n: s.summary() for n, s in lib.sets.items()},
@@ -83,7 +106,7 @@ def cmd_rcis_plot(args) -> int:
 
 def add_commands(sub) -> None:
     rcis = sub.add_parser("rcis", help="robust controlled invariant sets of the overtake scenario")
-    rsub = rcis.add_subparsers(dest="rcis_command", required=True)
+    rsub = rcis.add_commands("rcis_command")
     library, out = library_options(), json_option()
 
     p = rsub.add_parser("build", help="build or load the RCIS library", parents=[library_options(1), out])
@@ -92,7 +115,11 @@ def add_commands(sub) -> None:
     p = rsub.add_parser("certify", help="falsify invariance by sampling states and disturbances",
                         parents=[library, out])
     p.add_argument("--samples", type=count(1), default=100_000, help="states per set (default 100000)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the samples (default %(default)s)")
+    for action in p._actions:  # certify's --workers: the sets are certified in parallel
+        if "--workers" in action.option_strings:
+            action.help = ("processes certifying the sets in parallel, each set in two seeded halves; a library "
+                           "not in the cache is built with them too (default 2)")
     p.set_defaults(func=cmd_rcis_certify, on_interrupt=KEPT)
 
     p = rsub.add_parser("export", help="write one set as JSON pieces A x <= b", parents=[library, out])

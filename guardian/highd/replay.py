@@ -348,10 +348,10 @@ def keep_freed_memory() -> None:
 @contextmanager
 def _pool(workers: int, scheduler: str | None):
     if scheduler:
-        from dask.distributed import Client
+        from guardian.scheduler import client
 
-        with Client(scheduler) as client:
-            yield client
+        with client(scheduler) as c:  # SchedulerError (one line) if no scheduler answers there
+            yield c
     elif workers > 1:
         with process_executor(workers, _parse_on_one_thread) as ex:  # terminated, not drained, on Ctrl-C
             yield ex
@@ -381,7 +381,7 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     workers : int
         Processes that read, convert and evaluate the recordings.
     scheduler : str, optional
-        A Dask scheduler address instead of local processes.
+        A Dask scheduler address instead of local processes (connected to before any recording is read).
     progress : callable, optional
         ``progress(done, total)`` per recording.
     sensitivity : bool
@@ -406,6 +406,8 @@ def replay(path: Path | None = None, cfg: ReplayConfig = ReplayConfig(), context
     ------
     HighDFormatError
         A file that breaks the format or a plausibility rule, named with its line and column.
+    SchedulerError
+        No Dask scheduler answers at ``scheduler`` (``guardian.errors``; a ``ConnectionError``).
     """
     t0 = time.perf_counter()
     if measure_memory:
