@@ -165,8 +165,9 @@ def test_rollout_highway_overtake_json_rerun_and_video(traffic_library, cache_di
 def test_rollout_env_refuses_what_it_cannot_run(library, cache_dir, capsys):
     base = ["rollout", "--episodes", "1", "--cache-dir", str(cache_dir)]
     assert main(base + ["--env", "nowhere-v0"]) == 2
-    assert main(base + ["--env", "highway-v0", "--agent", "nobody"]) == 2
-    assert main(base + ["--env", "highway-v0", "--agent", "mpc"]) == 2
+    road = ["rollout", "--episodes", "1", "--env", "highway-v0"]  # no set library there: --cache-dir is refused
+    assert main(road + ["--agent", "nobody"]) == 2
+    assert main(road + ["--agent", "mpc"]) == 2
     assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--agent", "mpc", "--action", "meta"]) == 2
     assert main(base + ["--env", "guardian/HighwayOvertake-v0", "--traffic", "-1"]) == 2
     err = capsys.readouterr().err

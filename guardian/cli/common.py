@@ -166,7 +166,8 @@ def _add_library(p, min_iterations: int) -> None:
     p.add_argument("--workers", type=count(1), default=2, help="processes for the intention sets (default 2)")
     p.add_argument("--ego-speed-min", type=ego_speed_min, default=None, metavar="V",
                    help="the safe set's lowest ego speed v_ex^min (default: the dissertation's 16 m/s; 0 lets the "
-                        "ego wait behind the lead instead of having to overtake)")
+                        "ego wait behind the lead instead of having to overtake, and is the only value "
+                        "guardian/HighwayOvertake-v0 with traffic takes)")
 
 
 def library_options(min_iterations: int = 0) -> argparse.ArgumentParser:
