@@ -90,6 +90,15 @@ def env_class(env_id: str):
     return getattr(importlib.import_module(module), name)
 
 
+def action_types(env_id: str, config: dict) -> tuple:
+    """The action type a config gives the env (its own default when the config has none) and, under
+    ``MultiAgentAction``, each car's inner type (else the same type twice)."""
+    action = config.get("action") or env_class(env_id).default_config()["action"]
+    kind = action.get("type")
+    inner = (action.get("action_config") or {}).get("type") if kind == "MultiAgentAction" else kind
+    return kind, inner
+
+
 def _merge_env_class():
     from highway_env.envs.merge_env import MergeEnv
 

@@ -90,7 +90,7 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
     On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). ``controlled``:
     that many controlled cars under highway-env's ``MultiAgentAction`` (one agent and one guardian each).
     """
-    from guardian.env_checks import env_class, merge_limits
+    from guardian.env_checks import action_types, env_class, merge_limits
 
     if controlled is not None and env_id in OVERTAKE_ENVS:
         raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
@@ -126,9 +126,7 @@ def highway_env_config(env_id: str, action: str | None, intention: str | None = 
         if controlled is not None:
             inner = config.get("action") or {"type": _default_action(env_id)}
             config["action"] = {"type": "MultiAgentAction", "action_config": dict(inner)}
-        kind = (config.get("action") or {}).get("type") or _default_action(env_id)
-        inner = ((config.get("action") or {}).get("action_config") or {}).get("type") \
-            if kind == "MultiAgentAction" else kind
+        kind, inner = action_types(env_id, config)
         merge_limits(env_class(env_id), env_id, inner == "ContinuousAction", kind == "MultiAgentAction")
     return config
 

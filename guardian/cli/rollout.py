@@ -59,7 +59,7 @@ def cmd_rollout(args) -> int:
         env_config = env_config_option(args.env, args.env_config or [])
     except ValueError as exc:
         return usage_error(args, str(exc))
-    refused = _conflicts(args, env_config, overtake) or _needs_cars(args, env_config, overtake)
+    refused = _conflicts(args, env_config) or _needs_cars(args, env_config, overtake)
     if refused:
         return usage_error(args, refused)
     try:  # every key the rollout sets itself, checked before the sets are loaded
@@ -163,14 +163,12 @@ ACTION_NAMES = {"DiscreteMetaAction": "meta", "ContinuousAction": "continuous", 
 def action_name(env_id: str, action: str | None, env_config: dict) -> str:
     """The action type the rollout ran: ``--action``, else the config's, else the env's own (the inner type
     under ``MultiAgentAction``)."""
-    from guardian.env_checks import env_class
+    from guardian.env_checks import action_types
 
     if action is not None:
         return action
-    kind = env_config.get("action") or env_class(env_id).default_config()["action"]
-    if kind.get("type") == "MultiAgentAction":
-        kind = kind.get("action_config") or {}
-    return ACTION_NAMES.get(kind.get("type"), kind.get("type") or "default")
+    inner = action_types(env_id, env_config)[1]
+    return ACTION_NAMES.get(inner, inner or "default")
 
 
 def env_config_option(env_id: str, pairs: list) -> dict:
@@ -205,15 +203,9 @@ def env_config_option(env_id: str, pairs: list) -> dict:
     return out
 
 
-OPTION_KEYS = {"--action": "action", "--controlled": "controlled_vehicles", "--traffic": "vehicles_count"}
-
-
-def _conflicts(args, env_config: dict, overtake: bool) -> str | None:
-    """An option and an ``--env-config`` key that both set the same thing (one would be dropped)."""
-    keys = dict(OPTION_KEYS, **({"--traffic": "traffic_count"} if overtake else {}))
-    for option, key in keys.items():
-        if getattr(args, option[2:]) is not None and key in env_config:
-            return f"{option} and --env-config {key} set the same thing; give one of them"
+def _conflicts(args, env_config: dict) -> str | None:
+    """``--controlled`` beside a config action (each car's action is ``--action``'s). An option and the config
+    key it sets are refused by ``guardian.rollout.highway_env_config``."""
     if args.controlled is not None and "action" in env_config:
         return "--controlled sets the action (MultiAgentAction of --action); --env-config action does not apply with it"
     return None
