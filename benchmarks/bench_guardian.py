@@ -16,7 +16,7 @@ import gymnasium as gym
 
 import envs  # noqa: F401 - registers guardian/Overtake-v0
 from envs.agents import make_agent
-from guardian.supervisor import IntentionAwareGuardian
+from guardian.decide.lead import IntentionAwareGuardian
 from intention.library import build_library
 
 

@@ -31,8 +31,8 @@ import numpy as np
 
 import envs  # noqa: F401
 from envs.agents import make_agent
-from guardian.rollout import OVERTAKE_ENV, highway_env_config
-from guardian.wrapper import Guardian
+from guardian.evaluation.rollouts import OVERTAKE_ENV, highway_env_config
+from guardian.wrappers.guardian import Guardian
 from intention.library import build_library
 from intention.params import OvertakeParams
 

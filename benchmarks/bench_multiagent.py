@@ -3,7 +3,7 @@
 Run: python benchmarks/bench_multiagent.py [--episodes E] [--n 2 4 8] [--density easy medium hard]
      [--agent merge] [--action meta] [--seed 0] [--no-unguarded] [--v0-search] [--json]
 
-Every setting runs ``guardian rollout``'s loop (``guardian.rollout.highway_rollouts``) on ``guardian/Merge-v0``
+Every setting runs ``guardian rollout``'s loop (``guardian.evaluation.rollouts.highway_rollouts``) on ``guardian/Merge-v0``
 (merge-v0's road: two main lanes and an on-ramp that ends) with N controlled cars among the on-ramp
 merging reference's IDM traffic (easy 1-3, medium 2-4, hard 3-5 other cars; 20 s at 5 Hz, as there),
 each controlled car with its own agent and its own guardian, for ``trivial`` (no guarded car assumes
@@ -15,7 +15,7 @@ not see a guarded car on the next segment: docs/roads.md). An unguarded row per 
 Figures per setting, by ``HighwayTally.result``'s rules: episodes; mean distance per car and episode [m];
 lane changes and merges completed (cars that began on the ramp and ended on the main road) out of
 the cars that began on the ramp; policy steps overridden for safety (summed over the cars); collisions,
-those at a guarded car's fault (the independent fault judge, ``guardian.judge``) and those between two
+those at a guarded car's fault (the independent fault judge, ``guardian.evaluation.judge``) and those between two
 guarded cars; failsafe simulation steps. Cost: the guardian's decision per guarded car per simulation
 step (``Guardian._supervise_highway``: reading the scene and deciding; median and p99 in ms) beside the
 simulator's own simulation step (median, all cars), timed in a separate short run of each setting.
@@ -57,8 +57,8 @@ def _config(density: str, agent: str = "merge") -> dict:
 
 def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: int, agent: str, action: str) -> dict:
     from guardian.config import GuardianConfig
-    from guardian.progress import ProgressBar
-    from guardian.rollout import highway_rollouts
+    from guardian.cli.progress import ProgressBar
+    from guardian.evaluation.rollouts import highway_rollouts
 
     guarded = overapprox is not None
     r = highway_rollouts(ENV, agent, episodes, seed, action=action, controlled=n, guardian=guarded,
@@ -81,8 +81,8 @@ def cost(n: int, density: str, overapprox: str, episodes: int, seed: int, agent:
     import envs  # noqa: F401
     from envs.agents import make_agent
     from guardian.config import GuardianConfig
-    from guardian.rollout import highway_env_config
-    from guardian.wrapper import Guardian
+    from guardian.evaluation.rollouts import highway_env_config
+    from guardian.wrappers.guardian import Guardian
 
     config = highway_env_config(ENV, action, extra=_config(density, agent), controlled=n)
     env = Guardian(gym.make(ENV, config=config), None, GuardianConfig(overapprox=overapprox))

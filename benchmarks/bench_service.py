@@ -47,7 +47,7 @@ TRAJECTORIES = 16
 def trajectories(library, count: int, length: int, seed: int = 0) -> list[dict]:
     """``count`` closed loops of ``length`` steps, both intentions, from states inside C_bnd."""
     from envs.overtake import DEFAULT_CONFIG, draw_disturbance, sample_initial_state
-    from guardian.supervisor import IntentionAwareGuardian
+    from guardian.decide.lead import IntentionAwareGuardian
 
     out = []
     for k in range(count):
@@ -69,7 +69,7 @@ def trajectories(library, count: int, length: int, seed: int = 0) -> list[dict]:
 
 def expected_applied(library, traj: dict, n: int) -> list:
     """The applied input of step ``n - 1`` of a trajectory (what the server must answer last)."""
-    from guardian.supervisor import IntentionAwareGuardian
+    from guardian.decide.lead import IntentionAwareGuardian
 
     g = IntentionAwareGuardian(library)
     applied = None

@@ -9,12 +9,12 @@ with highway-env's own DQN settings, the same seeds and the same number of steps
 * ``plain``: no guardian;
 * ``shielded``: under the ``Guardian`` (default config: no penalty, the proposal stored);
 * ``penalised``: under the ``Guardian`` with ``override_penalty``, the proposal stored (no relabelling);
-* ``relabelled``: under the ``Guardian`` with ``override_penalty`` and ``guardian.rl.ShieldedReplayBuffer``
+* ``relabelled``: under the ``Guardian`` with ``override_penalty`` and ``guardian.integrations.sb3.ShieldedReplayBuffer``
   (the executed action stored with its reward, the overridden proposal with the penalised one).
 
 Each trained policy is then run for ``--episodes`` seeded episodes (the same seeds for every policy)
 without and with the guardian and tallied by the project's tally and fault judge
-(``guardian.rollout.HighwayTally``, ``guardian.judge``): return (the env's reward, no penalty), episodes
+(``guardian.evaluation.tally.HighwayTally``, ``guardian.evaluation.judge``): return (the env's reward, no penalty), episodes
 that crashed, at-fault crashes, distance, and the guardian's override rate (policy steps changed for
 safety). Needs the ``rl`` extra: ``pip install 'guardian[rl]'``.
 """
@@ -86,7 +86,7 @@ def train(variant: str, seed: int, steps: int, penalty: float, out: Path) -> dic
     from stable_baselines3 import DQN
 
     from guardian import Guardian, GuardianConfig
-    from guardian.rl import ShieldedReplayBuffer
+    from guardian.integrations.sb3 import ShieldedReplayBuffer
 
     torch.set_num_threads(1)
     env = gym.make(ENV_ID)
@@ -113,7 +113,8 @@ def train(variant: str, seed: int, steps: int, penalty: float, out: Path) -> dic
 
 def evaluate(path: str, guardian: bool, episodes: int, seed: int) -> dict:
     from guardian import Guardian
-    from guardian.rollout import HighwayTally, run_episodes
+    from guardian.evaluation.tally import HighwayTally
+    from guardian.evaluation.episodes import run_episodes
 
     env = gym.make(ENV_ID)
     if guardian:

@@ -40,7 +40,7 @@ CAR_LENGTH = 5.0   # [m]
 CAR_WIDTH = 1.75   # [m]
 
 
-# [RGB] in videos (highway-env's palette); the panel's legend uses the same (guardian.panel)
+# [RGB] in videos (highway-env's palette); the panel's legend uses the same (guardian.wrappers.panel)
 COLOURS = {"ego": VehicleGraphics.EGO_COLOR, "lead": VehicleGraphics.PURPLE, "traffic": VehicleGraphics.BLUE,
            "crashed": VehicleGraphics.RED}
 

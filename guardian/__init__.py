@@ -24,7 +24,7 @@ __all__ = ["Guardian", "GuardianConfig", "ConfigError", "HighDFormatError", "LPE
 def __getattr__(name: str):
     if name in ("Guardian", "GuardianConfig"):
         import envs  # noqa: F401 - registers guardian/Overtake-v0 and guardian/HighwayOvertake-v0
-        from guardian import wrapper
+        from guardian.wrappers import guardian as wrapper
 
         return getattr(wrapper, name)
     raise AttributeError(f"module 'guardian' has no attribute {name!r}")

@@ -26,14 +26,14 @@ class GuardianConfig:
         and highway-env's ego's.
     wreck_margin : float
         [m] how far an impact may push a car back beyond where it stands still: the guardian keeps
-        this much more room behind a car at risk of a crash (``guardian.traffic``; docs/guardian.md
+        this much more room behind a car at risk of a crash (``guardian.decide.traffic``; docs/guardian.md
         "Wrecks" has the measurement behind the default).
     reverse_reach : float
         [m] how far a car seen driving backwards may still back up: highway-env lets traffic reverse
         (``Vehicle.MIN_SPEED = -40``; IDM brakes into reverse when it stands inside its desired gap), which
         the traffic model (speeds in ``[0, v_max]``) does not. The guardian takes a reversing car's rear
         this much further back and the car into the lanes beside its own (its steering swings a reversing
-        body); a reversal that goes further is counted (``guardian.monitor``; docs/guardian.md "Reversing
+        body); a reversal that goes further is counted (``guardian.adapters.highway_env.monitor``; docs/guardian.md "Reversing
         traffic" has the measurement behind the default).
     overapprox : str
         ``trivial`` (highway-env traffic announces no lane change) or ``ordered``.

@@ -1,7 +1,7 @@
 """Interval bounds of the lead's next speed under an intention model (6.3)-(6.7).
 
 Kept out of ``intention.models`` on purpose: the cached sets are keyed by the source of every module
-``intention.library`` imports, and this module shapes no set (``guardian.lead_following`` uses it).
+``intention.library`` imports, and this module shapes no set (``guardian.decide.lead_following`` uses it).
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 ``tests/data/highway_decisions.json`` was written by ``python tests/highway_decisions.py --write`` with the
 code of commit 38692e1 (before roads beyond one straight segment and many guarded cars were added) and
-written again when the guardian learned to keep room behind cars at risk of a crash (``guardian.traffic``,
+written again when the guardian learned to keep room behind cars at risk of a crash (``guardian.decide.traffic``,
 "Wrecks"): that changed one episode, highway-fast-v0 seek meta, whose leader tailgates from the start; the
 other seven were the same bit for bit. The test
 (``tests/test_highway_regression.py``) replays the same episodes and compares every applied input (each
@@ -43,8 +43,8 @@ def record(env_id: str, agent: str, action: str, config: dict, seed: int) -> dic
     from highway_env.vehicle.kinematics import Vehicle
 
     from envs.agents import make_agent
-    from guardian.rollout import ACTIONS
-    from guardian.wrapper import Guardian
+    from guardian.evaluation.rollouts import ACTIONS
+    from guardian.wrappers.guardian import Guardian
 
     env = Guardian(gym.make(env_id, config={**config, "action": dict(ACTIONS[action])}))
     inputs = []

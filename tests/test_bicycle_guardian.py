@@ -1,13 +1,14 @@
-"""highway-env's bicycle ego on hand-built scenes, without a simulator (guardian.bicycle)."""
+"""highway-env's bicycle ego on hand-built scenes, without a simulator (guardian.decide.bicycle)."""
 import math
 
 import numpy as np
 import pytest
 
-from guardian.bicycle import BicycleGuardian, EgoState
+from guardian.decide.bicycle import BicycleGuardian
+from guardian.model.scene import EgoState
 from guardian.config import GuardianConfig
-from guardian.ego import BicycleEgo
-from guardian.scene import Car, Scene
+from guardian.decide.kinematics import BicycleEgo
+from guardian.model.scene import Car, Scene
 
 W = 4.0      # [m] highway-env's lane width; lane 0 at y = 0
 N = 3

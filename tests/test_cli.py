@@ -61,7 +61,7 @@ def test_itha_highway_json(tmp_path, capsys):
     for oa in ("trivial", "ordered"):
         assert {"distance_mean", "unsafe_steps", "lane_changes"} <= set(data[oa])
         assert data[oa]["unsafe_steps"] == 0
-    from guardian.rerun_log import read_entities, read_texts
+    from guardian.recording.rerun import read_entities, read_texts
     ents = read_entities(tmp_path / "hw.rrd")
     for e in ("/road/lanes", "/road/cars", "/road/ego", "/ego/trigger", "/verdicts/left", "/verdicts/right"):
         assert ents.get(e, 0) > 0, (e, sorted(ents))
@@ -86,7 +86,7 @@ def test_rollout_highway_env_json(tmp_path, capsys):
     assert code == 0
     assert {"episodes", "steps", "collisions", "ego_at_fault_collisions", "override_steps"} <= set(data)
     assert data["ego_at_fault_collisions"] == 0
-    from guardian.rerun_log import read_entities, read_texts
+    from guardian.recording.rerun import read_entities, read_texts
     ents = read_entities(tmp_path / "he.rrd")
     assert ents.get("/road/ego", 0) == data["steps"]
     overrides = read_texts(tmp_path / "he.rrd", "/events/override")
@@ -118,7 +118,7 @@ def test_highd_generate_and_replay_json(tmp_path, capsys):
     assert set(data["override_rates"]) == {"self_safety", "responsibility_trivial", "responsibility_ordered",
                                            "rss_longitudinal", "rss_longitudinal_calibrated", "rss_cut_in",
                                            "rss_cut_in_calibrated"}
-    from guardian.rerun_log import read_entities
+    from guardian.recording.rerun import read_entities
     ents = read_entities(tmp_path / "r.rrd")
     assert ents.get("/road/vehicles", 0) > 100 and ents.get("/road/markings", 0) == 1
 
@@ -138,7 +138,7 @@ def test_replay_refuses_malformed_data_with_exit_2(tmp_path, capsys):
 
 
 def test_rollout_highway_overtake_json_rerun_and_video(traffic_library, cache_dir, tmp_path, capsys):
-    from guardian.rerun_log import read_entities, read_texts
+    from guardian.recording.rerun import read_entities, read_texts
 
     rrd, video = tmp_path / "run.rrd", tmp_path / "video"
     code, data = run_json(capsys, ["rollout", "--env", "guardian/HighwayOvertake-v0", "--intention", "aggressive",

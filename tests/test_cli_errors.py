@@ -23,7 +23,7 @@ from guardian.cli import main
 
 WORK = ["guardian.cli.sets.load_library", "guardian.highd.replay.replay", "guardian.highd.generate.generate",
         "guardian.highd.ngsim.convert_ngsim", "itha.highway_experiment.highway_experiment",
-        "itha.processors.processors_experiment", "guardian.rollout.run_episodes", "guardian.falsify.run_campaign"]
+        "itha.processors.processors_experiment", "guardian.evaluation.episodes.run_episodes", "guardian.evaluation.campaign.run_campaign"]
 
 
 @pytest.fixture
@@ -352,7 +352,7 @@ def test_rollout_human_output_shows_every_figure_of_every_car_and_crash(guard, c
 
 
 def test_falsify_human_output_shows_every_figure(monkeypatch, capsys):
-    import guardian.falsify
+    import guardian.evaluation.campaign
 
     counts = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
               "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
@@ -363,7 +363,7 @@ def test_falsify_human_output_shows_every_figure(monkeypatch, capsys):
               "totals": row("all", 1001), "by_env": [row("exit-v0 meta", 2001)], "by_agent": [row("hold", 3001)],
               "by_setting": [row("own config", 4001), row("density 2.5", 5001)],
               "failures": [{"kind": "unchecked_entries", "count": 6007, "cell": "own config", "command": "guardian x"}]}
-    monkeypatch.setattr(guardian.falsify, "run_campaign", lambda *a, **k: result)
+    monkeypatch.setattr(guardian.evaluation.campaign, "run_campaign", lambda *a, **k: result)
     argv = ["falsify", "--only", "roads", "--agent", "merge"]
     assert main(argv) == 1  # the counts above break the promise
     text = capsys.readouterr().out

@@ -54,13 +54,13 @@ def test_a_malformed_scheduler_address_is_refused(argv, address, capsys):
 
 def test_falsify_connects_before_it_builds_the_sets(nowhere, short_timeout, monkeypatch, capsys):
     """The overtake cells need the RCIS library (a minute when the cache is cold): not built for nothing."""
-    import guardian.falsify
+    import guardian.evaluation.campaign
 
     def started(*args, **kwargs):
         raise AssertionError("work started before the scheduler answered")
 
-    monkeypatch.setattr(guardian.falsify, "_library", started)
-    monkeypatch.setattr(guardian.falsify, "_chunk", started)
+    monkeypatch.setattr(guardian.evaluation.campaign, "_library", started)
+    monkeypatch.setattr(guardian.evaluation.campaign, "_chunk", started)
     assert main(["falsify", "--only", "overtake", "--agent", "seek", "--scheduler", nowhere]) == 2
     assert nowhere in capsys.readouterr().err
 
@@ -78,7 +78,7 @@ def test_replay_connects_before_it_reads_a_recording(nowhere, short_timeout, mon
 
 def test_the_library_functions_raise_a_scheduler_error(nowhere, short_timeout):
     from guardian.errors import SchedulerError
-    from guardian.falsify import matrix, run_campaign
+    from guardian.evaluation.campaign import matrix, run_campaign
     from guardian.highd.replay import replay
 
     with pytest.raises(SchedulerError, match="cannot reach the Dask scheduler") as info:
@@ -91,7 +91,7 @@ def test_the_library_functions_raise_a_scheduler_error(nowhere, short_timeout):
 def test_falsify_runs_on_a_scheduler_that_answers():
     import distributed
 
-    from guardian.falsify import matrix, run_campaign
+    from guardian.evaluation.campaign import matrix, run_campaign
 
     cells = [c for c in matrix(only="roads") if c.env == "merge-v0" and c.agent in ("merge", "reckless")]
     local = run_campaign(cells, 1, seed=4, workers=1)

@@ -15,13 +15,13 @@ ENTRY_POINTS = [
     ("intention.library", "build_library", True), ("intention.library", "OvertakeLibrary", False),
     ("intention.library", "export_set", True), ("intention.estimator", "IntentionEstimator", False),
     ("intention.estimator", "IntentionEstimator.update", True),
-    ("guardian.supervisor", "IntentionAwareGuardian", False), ("guardian.supervisor", "IntentionAwareGuardian.step", True),
-    ("guardian.wrapper", "Guardian", False), ("guardian.wrapper", "Guardian.step", True),
-    ("guardian.rollout", "run_episodes", False), ("guardian.falsify", "run_campaign", True),
-    ("guardian.pointmass", "PointMassGuardian", False), ("guardian.pointmass", "PointMassGuardian.step", True),
-    ("guardian.bicycle", "BicycleGuardian", False), ("guardian.bicycle", "BicycleGuardian.step", True),
-    ("guardian.judge", "FaultJudge", False),
-    ("guardian.rollout", "highway_rollouts", True),
+    ("guardian.decide.lead", "IntentionAwareGuardian", False), ("guardian.decide.lead", "IntentionAwareGuardian.step", True),
+    ("guardian.wrappers.guardian", "Guardian", False), ("guardian.wrappers.guardian", "Guardian.step", True),
+    ("guardian.evaluation.episodes", "run_episodes", False), ("guardian.evaluation.campaign", "run_campaign", True),
+    ("guardian.decide.overtake", "PointMassGuardian", False), ("guardian.decide.overtake", "PointMassGuardian.step", True),
+    ("guardian.decide.bicycle", "BicycleGuardian", False), ("guardian.decide.bicycle", "BicycleGuardian.step", True),
+    ("guardian.evaluation.judge", "FaultJudge", False),
+    ("guardian.evaluation.rollouts", "highway_rollouts", True),
     ("guardian.highd.replay", "replay", True), ("guardian.highd.reader", "read_recording", True),
     ("guardian.highd.generate", "generate", True), ("guardian.highd.convert", "to_itha", True),
     ("guardian.highd.ngsim", "convert_ngsim", True), ("guardian.service.server", "make_server", True),
@@ -207,8 +207,8 @@ def test_the_front_door_names_import_from_guardian():
 
     code = ("import gymnasium as gym\n"
             "from guardian import Guardian, GuardianConfig, ConfigError\n"
-            "import guardian.errors, guardian.wrapper\n"
-            "assert Guardian is guardian.wrapper.Guardian and GuardianConfig is guardian.wrapper.GuardianConfig\n"
+            "import guardian.errors, guardian.wrappers.guardian\n"
+            "assert Guardian is guardian.wrappers.guardian.Guardian and GuardianConfig is guardian.wrappers.guardian.GuardianConfig\n"
             "assert ConfigError is guardian.errors.ConfigError\n"
             "assert 'guardian/HighwayOvertake-v0' in gym.registry and 'highway-fast-v0' in gym.registry\n"
             "try:\n    GuardianConfig(override_penalty=-1)\nexcept ConfigError as e:\n    print(e)\n")

@@ -1,4 +1,4 @@
-"""What the guardian accepts of a highway-env config (``guardian.env_checks``), on hand-built cases:
+"""What the guardian accepts of a highway-env config (``guardian.adapters.highway_env.checks``), on hand-built cases:
 values of the wrong kind or out of range are refused naming the key and the value, every env's own
 defaults pass, and the MergeEnv family's limits hold for the wrapper as for the command line."""
 import gymnasium as gym
@@ -7,7 +7,7 @@ import pytest
 
 import envs  # noqa: F401 - registers guardian/Merge-v0
 from guardian import Guardian
-from guardian.env_checks import check_config, discrete_reward, env_class, merge_limits, one_ego
+from guardian.adapters.highway_env.checks import check_config, discrete_reward, env_class, merge_limits, one_ego
 from guardian.errors import ConfigError
 
 DEFAULTS = {"simulation_frequency": 15, "policy_frequency": 1, "duration": 40, "vehicles_count": 50,
@@ -104,7 +104,7 @@ def test_the_wrapper_refuses_several_cars_where_the_env_spawns_one():
 
 def test_the_rollout_keeps_the_cars_from_behind_it_was_given():
     """--traffic 12 --env-config traffic_from_behind=6 once ran with 2 from behind (the default's cap)."""
-    from guardian.rollout import highway_env_config
+    from guardian.evaluation.rollouts import highway_env_config
 
     config = highway_env_config("guardian/HighwayOvertake-v0", None, "cautious", "random", 12, None,
                                 {"traffic_from_behind": 6, "lanes_count": 3})
@@ -118,7 +118,7 @@ def test_the_rollout_keeps_the_cars_from_behind_it_was_given():
     ("guardian/Overtake-v0", {"disturbance": "adversarial"}, "disturbance"),
     ("highway-v0", {"vehicles_count": 5}, "vehicles_count")])
 def test_a_key_the_rollout_sets_is_not_also_taken_from_the_config(env_id, extra, key):
-    from guardian.rollout import highway_env_config
+    from guardian.evaluation.rollouts import highway_env_config
 
     with pytest.raises(ValueError, match=f"'{key}' is set by"):
         highway_env_config(env_id, None, "cautious", "random", 3 if key == "vehicles_count" else None, None, extra)

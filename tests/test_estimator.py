@@ -278,7 +278,7 @@ class RecordingWindowLPEstimator(WindowLPEstimator):
 
 def _rollouts(library):
     from envs.agents import BASELINES
-    from guardian.rollout import TWO_CARS_ENV, highway_rollouts
+    from guardian.evaluation.rollouts import TWO_CARS_ENV, highway_rollouts
 
     out = []
     for intention in ("aggressive", "cautious"):
@@ -295,11 +295,11 @@ def test_rollouts_and_their_replay_are_unchanged(library, monkeypatch):
     """Rollouts of the four drivers x both intentions x random and adversarial disturbance x the guardian
     with and without intentions: the same results with the interval estimator as with the window LP;
     and every recorded transition, replayed in order, gives the same valid set after every update."""
-    import guardian.supervisor
+    import guardian.decide.lead
 
     new = _rollouts(library)
     RecordingWindowLPEstimator.instances = []
-    monkeypatch.setattr(guardian.supervisor, "IntentionEstimator", RecordingWindowLPEstimator)
+    monkeypatch.setattr(guardian.decide.lead, "IntentionEstimator", RecordingWindowLPEstimator)
     monkeypatch.setattr(est_mod, "IntentionEstimator", RecordingWindowLPEstimator)
     reference = _rollouts(library)
     monkeypatch.undo()

@@ -4,7 +4,7 @@ import shlex
 
 import pytest
 
-from guardian.falsify import COUNTED, OVERTAKE_ENV, Campaign, Cell, matrix, run_campaign, run_episode
+from guardian.evaluation.campaign import COUNTED, OVERTAKE_ENV, Campaign, Cell, matrix, run_campaign, run_episode
 
 
 def test_the_matrix_spans_what_the_promise_is_tested_on():

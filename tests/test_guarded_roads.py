@@ -12,8 +12,8 @@ import envs  # noqa: F401 - registers guardian/Merge-v0
 from envs.agents import make_agent
 from guardian.config import GuardianConfig
 from guardian.errors import ConfigError
-from guardian.rollout import highway_rollouts
-from guardian.wrapper import Guardian
+from guardian.evaluation.rollouts import highway_rollouts
+from guardian.wrappers.guardian import Guardian
 
 warnings.filterwarnings("ignore", message=".*out of date.*")
 
@@ -41,8 +41,8 @@ def test_a_continuous_agent_on_exit_v0_stays_on_the_road():
         if guardian:
             env = Guardian(env)
         obs, _ = env.reset(seed=0)
-        from guardian.roads import outline
-        from guardian.sensing import read_road
+        from guardian.model.roads import outline
+        from guardian.adapters.highway_env.road import read_road
 
         road, worst = read_road(env.unwrapped), 0.0
         for t in range(18):
@@ -97,7 +97,7 @@ def test_every_controlled_car_has_its_own_guardian(kind):
 def test_each_guarded_car_sees_the_others_as_traffic():
     """Car 0's decision object is asked about a scene holding cars 1 and 2 (and the IDM cars), as guarded
     cars that announce; its own car is not in it."""
-    from guardian.sensing import road_scene
+    from guardian.adapters.highway_env.scene import road_scene
 
     env = _multi(3)
     env.reset(seed=1)
@@ -159,7 +159,7 @@ def test_ordered_lets_one_of_two_cars_announce_the_lane_both_want():
 
 
 def test_idm_cars_announce_nothing():
-    from guardian.sensing import road_scene
+    from guardian.adapters.highway_env.scene import road_scene
 
     env = _multi(2, overapprox="ordered")
     env.reset(seed=3)
@@ -201,7 +201,7 @@ def _place(base, v, index, x):
 
 
 def test_merges_count_cars_that_began_on_a_lane_that_ends_and_finished_on_one_that_goes_on():
-    from guardian.rollout import HighwayTally
+    from guardian.evaluation.tally import HighwayTally
 
     env = _tally_env(2)
     base = env.unwrapped
@@ -220,8 +220,8 @@ def test_merges_count_cars_that_began_on_a_lane_that_ends_and_finished_on_one_th
 
 
 def test_a_crash_between_two_guarded_cars_counts_once_and_against_the_one_blamed():
-    from guardian.judge import Crash
-    from guardian.rollout import HighwayTally
+    from guardian.evaluation.judge import Crash
+    from guardian.evaluation.tally import HighwayTally
 
     env = _tally_env(2)
     tally = HighwayTally(env, overtake=False, guardian=False)
@@ -244,7 +244,7 @@ def test_the_at_fault_crashes_found_on_merge_roads_with_traffic_that_did_not_see
     """The three collisions the judge gave a guarded car in 1,000-episode runs with highway-env's v0 search
     (a car sees only its own lane segment): each came right after steps in which a traffic car missed the
     ego. The guardian now treats such a car as one that neither brakes for the ego nor weighs it when
-    changing lanes (``guardian.sensing.blind_to``): the same episodes, blind steps and all, end without a
+    changing lanes (``guardian.adapters.highway_env.blindness.blind_to``): the same episodes, blind steps and all, end without a
     collision; with the connected search (merge-v1's, guardian/Merge-v0's default) nobody is blind."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)

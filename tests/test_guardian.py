@@ -7,9 +7,9 @@ from gymnasium.utils.env_checker import check_env
 
 import envs  # noqa: F401  (registers guardian/Overtake-v0)
 from envs.agents import make_agent
-from guardian.rollout import TWO_CARS_ENV, highway_env_config, highway_rollouts
-from guardian.supervisor import FAILSAFE_INPUT, IntentionAwareGuardian
-from guardian.wrapper import Guardian
+from guardian.evaluation.rollouts import TWO_CARS_ENV, highway_env_config, highway_rollouts
+from guardian.decide.lead import FAILSAFE_INPUT, IntentionAwareGuardian
+from guardian.wrappers.guardian import Guardian
 
 
 def _two_cars(library, intention="cautious", disturbance="random", **extra):
@@ -91,7 +91,7 @@ def test_guardian_refuses_malformed_input(library):
 
 
 def test_rerun_recording_has_the_scene_and_the_overrides(library, tmp_path):
-    from guardian.rerun_log import read_entities, read_texts
+    from guardian.recording.rerun import read_entities, read_texts
 
     path = tmp_path / "run.rrd"
     r = highway_rollouts(TWO_CARS_ENV, "bad", 2, 0, library=library, intention="cautious", rerun_path=path,

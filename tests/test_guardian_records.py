@@ -9,7 +9,7 @@ import pytest
 import envs  # noqa: F401
 from envs.agents import make_agent
 from guardian import Guardian
-from guardian.rollout import OVERTAKE_ENV
+from guardian.evaluation.rollouts import OVERTAKE_ENV
 
 SHORT = {"vehicles_count": 20, "duration": 15, "policy_frequency": 5}  # 75 policy steps of 3 simulation steps
 MODEL_CLIPS = ("clipped at the model's top speed", "clipped to the model's bound")
@@ -155,8 +155,8 @@ def test_a_lane_reached_between_two_decisions_without_an_entry_is_not_allowed():
     """The record's ``lanes`` (what ``unchecked_entries`` compares with) are the lanes held at the policy
     step's start and the lanes entered during it, not every decision's lanes: a later decision starts where
     the body already is."""
-    from guardian.decision import Decision
-    from guardian.wrapper import allowed_lanes
+    from guardian.model.decision import Decision
+    from guardian.wrappers.guardian import allowed_lanes
 
     start = Decision([0.0, 0.0], [0.0, 0.0], "none", lanes=[1])
     drifted = Decision([0.0, 0.0], [0.0, 0.0], "none", lanes=[1, 2])  # the body is over lane 2 now, unjudged

@@ -9,11 +9,11 @@ import pytest
 import envs  # noqa: F401
 import highway_env  # noqa: F401
 from guardian.errors import ConfigError
-from guardian.monitor import ModelMonitor
-from guardian.rollout import OVERTAKE_ENV, highway_env_config, highway_rollouts
-from guardian.sensing import road_scene
-from guardian.supervisor import IntentionAwareGuardian
-from guardian.wrapper import Guardian, GuardianConfig
+from guardian.adapters.highway_env.monitor import ModelMonitor
+from guardian.evaluation.rollouts import OVERTAKE_ENV, highway_env_config, highway_rollouts
+from guardian.adapters.highway_env.scene import road_scene
+from guardian.decide.lead import IntentionAwareGuardian
+from guardian.wrappers.guardian import Guardian, GuardianConfig
 from intention.models import intention_models
 from intention.params import OvertakeParams
 
@@ -190,7 +190,7 @@ def test_the_ego_stops_at_standstill_and_the_monitor_knows_it():
 
 
 def test_render_adds_the_guardian_panel(traffic_library):
-    from guardian.panel import PANEL_HEIGHT
+    from guardian.wrappers.panel import PANEL_HEIGHT
 
     env = Guardian(gym.make(OVERTAKE_ENV, render_mode="rgb_array",
                             config={"initial_region": traffic_library.region("bounded_velocity"),

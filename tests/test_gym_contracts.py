@@ -76,7 +76,7 @@ def test_check_env_passes_on_every_guarded_env(case, libraries):
 def test_the_spec_round_trips_through_gym_make_and_keeps_supervising(case, libraries):
     env = _guarded(*case, libraries, config=GuardianConfig(override_penalty=0.5, h_min=3.0))
     wrapper = env.spec.additional_wrappers[-1]
-    assert wrapper.name == "Guardian" and wrapper.entry_point == "guardian.wrapper:Guardian"
+    assert wrapper.name == "Guardian" and wrapper.entry_point == "guardian.wrappers.guardian:Guardian"
     made = gym.make(env.spec)
     assert isinstance(made, Guardian) and made.spec == env.spec
     assert made.config == env.config and made.library is env.library

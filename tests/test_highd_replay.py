@@ -193,7 +193,7 @@ def test_rerun_of_real_data_has_per_vehicle_series_and_a_blueprint(tmp_path):
     from rerun.chunk import RrdReader
 
     from guardian.cli import main
-    from guardian.rerun_log import read_entities
+    from guardian.recording.rerun import read_entities
 
     folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "i80_sample"
     rrd = tmp_path / "i80.rrd"

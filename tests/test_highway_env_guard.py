@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from guardian.errors import ConfigError
-from guardian.rollout import highway_rollouts
-from guardian.wrapper import Guardian
+from guardian.evaluation.rollouts import highway_rollouts
+from guardian.wrappers.guardian import Guardian
 
 SMALL = {"vehicles_count": 20, "duration": 12}
 

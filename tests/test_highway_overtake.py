@@ -103,7 +103,7 @@ def test_render_shows_the_scene():
                                     {"type": "ContinuousAction", "longitudinal": False}, {"type": "ContinuousAction"}])
 def test_every_action_type_acts_on_U_e_and_is_supervised(action, traffic_library):
     """DiscreteAction's grid and one-axis continuous actions: the ranges default to U_e, the other axis is 0."""
-    from guardian.wrapper import Guardian
+    from guardian.wrappers.guardian import Guardian
 
     env = Guardian(gym.make("guardian/HighwayOvertake-v0", config={"action": dict(action), "duration": 3}),
                    traffic_library)

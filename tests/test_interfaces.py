@@ -5,7 +5,7 @@ import numpy as np
 
 import envs  # noqa: F401 - registers the environments
 from envs.agents import AGENTS, Agent, make_agent
-from guardian.supervisor import IntentionAwareGuardian, Supervisor
+from guardian.decide.lead import IntentionAwareGuardian, Supervisor
 from itha.car_following import CarFollowingParams, CarFollowingSet, MaximalSet, load_or_build
 
 

@@ -1,10 +1,10 @@
-"""The independent fault judge on hand-built collisions (guardian.judge): each rule, and its ties."""
+"""The independent fault judge on hand-built collisions (guardian.evaluation.judge): each rule, and its ties."""
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from guardian.judge import ENTRY_WINDOW, FaultJudge, body_lanes
+from guardian.evaluation.judge import ENTRY_WINDOW, FaultJudge, body_lanes
 
 LANE = 4.0  # [m]; lane 0 centred on y = 0
 
@@ -122,7 +122,7 @@ def test_body_lanes_follow_the_heading():
 from highway_env.road.lane import CircularLane, SineLane, StraightLane  # noqa: E402
 from highway_env.road.road import RoadNetwork  # noqa: E402
 
-from guardian.judge import Lines  # noqa: E402
+from guardian.evaluation.judge import Lines  # noqa: E402
 
 
 def _merge_network():

@@ -1,4 +1,4 @@
-"""F_R^M, following the lead with the intentions not ruled out (guardian.lead_following), as falsifiers.
+"""F_R^M, following the lead with the intentions not ruled out (guardian.decide.lead_following), as falsifiers.
 
 States are drawn in the set, the lead drives by one of the models (the closed-loop PWA system of
 intention.models, its disturbance at random or at its box's corners), the guardian chooses the ego's
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from guardian.config import GuardianConfig
-from guardian.lead_following import LeadFollowing
-from guardian.pointmass import PointMassGuardian
-from guardian.scene import Car, Scene
+from guardian.decide.lead_following import LeadFollowing
+from guardian.decide.overtake import PointMassGuardian
+from guardian.model.scene import Car, Scene
 from intention.lead_bounds import next_lead_speed_bounds
 
 HALF = 0.875 / 2

@@ -1,4 +1,4 @@
-"""Traffic that does not see the guarded car (``guardian.monitor.traffic_blind_to``), on a hand-built
+"""Traffic that does not see the guarded car (``guardian.adapters.highway_env.blindness.traffic_blind_to``), on a hand-built
 road of two segments: highway-env's v0 search looks on the car's own segment only."""
 import pytest
 from highway_env.road.lane import StraightLane
@@ -6,7 +6,8 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-from guardian.monitor import ModelMonitor, traffic_blind_to
+from guardian.adapters.highway_env.monitor import ModelMonitor
+from guardian.adapters.highway_env.blindness import traffic_blind_to
 
 
 def _road(connected: bool) -> Road:
@@ -78,7 +79,8 @@ class _Base:
 
 
 def _scene_of(road, ego, ego_slot):
-    from guardian.sensing import read_road_map, road_scene
+    from guardian.adapters.highway_env.road import read_road_map
+    from guardian.adapters.highway_env.scene import road_scene
 
     road_map = read_road_map(road.network)
     return road_scene(_Base(road, ego), road_map, frozenset({road_map.itha_lane(ego_slot)}), ego), road_map
@@ -100,7 +102,7 @@ def test_an_entry_in_front_of_a_follower_that_cannot_see_the_ego_is_refused(conn
     """The ego 20 m past a segment's end in lane 0 asks for lane 1, where an IDM car on the previous
     segment is 30 m behind: with the v0 search it would not brake for the ego (the crashes of
     docs/roads.md), so the entry is refused; with the connected search it sees the ego."""
-    from guardian.traffic import TrafficSupervisor
+    from guardian.decide.traffic import TrafficSupervisor
     from itha.car_following import CarFollowingParams
 
     _, _, road_map, scene, car = _ego_and_one_car(connected, 90.0, 20.0, 120.0)

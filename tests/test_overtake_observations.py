@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 import envs  # noqa: F401
 from guardian import Guardian
 from guardian.errors import ConfigError
-from guardian.rollout import OVERTAKE_ENV
+from guardian.evaluation.rollouts import OVERTAKE_ENV
 
 OBSERVATIONS = {
     "Kinematics": {"type": "Kinematics"},

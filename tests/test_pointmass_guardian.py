@@ -1,4 +1,4 @@
-"""The overtake ego's decisions on hand-built scenes, without a simulator (guardian.pointmass).
+"""The overtake ego's decisions on hand-built scenes, without a simulator (guardian.decide.overtake).
 
 The scenes are stepped by the model itself ((6.3)-(6.7), the ego's speed held at 0 as the simulator
 does) and by traffic moving as (7.3), so every claim is checked in closed loop.
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from guardian.config import GuardianConfig
-from guardian.pointmass import PointMassGuardian, lead_following_params
-from guardian.scene import Car, Scene
+from guardian.decide.overtake import PointMassGuardian, lead_following_params
+from guardian.model.scene import Car, Scene
 from itha.car_following import CarFollowingParams, MaximalSet
 
 HALF = 0.875 / 2  # the ego's half width in units of y_e (1.75 m at 2 m per unit)
@@ -183,7 +183,7 @@ def test_the_falsifier_rejects_a_follow_set_that_trusts_the_lead_too_much(traffi
 
 def test_without_traffic_the_decision_is_the_two_car_guardian(library):
     """traffic=False: the composed object answers exactly as IntentionAwareGuardian (Section 6.5)."""
-    from guardian.supervisor import IntentionAwareGuardian
+    from guardian.decide.lead import IntentionAwareGuardian
 
     g = PointMassGuardian(library, 2, HALF, traffic=False, config=GuardianConfig(), stops_at_zero=False)
     twin = IntentionAwareGuardian(library)

@@ -1,7 +1,7 @@
 """Long jobs show a bar on a terminal and plain lines elsewhere."""
 import io
 
-from guardian.progress import ProgressBar
+from guardian.cli.progress import ProgressBar
 
 
 class Terminal(io.StringIO):

@@ -10,8 +10,8 @@ import highway_env  # noqa: F401
 import numpy as np
 
 import envs  # noqa: F401
-from guardian.rollout import OVERTAKE_ENV, highway_env_config, highway_rollouts
-from guardian.wrapper import Guardian
+from guardian.evaluation.rollouts import OVERTAKE_ENV, highway_env_config, highway_rollouts
+from guardian.wrappers.guardian import Guardian
 
 PROMISE = ("ego_at_fault_collisions", "unchecked_entries", "reversing_steps", "unsupervised_steps")
 

@@ -13,10 +13,12 @@ from highway_env.vehicle.kinematics import Vehicle
 
 import envs  # noqa: F401 - registers guardian/Merge-v0
 from guardian.config import GuardianConfig
-from guardian.monitor import ModelMonitor
-from guardian.rollout import highway_rollouts
-from guardian.sensing import Road, reverse_reaches, road_scene
-from guardian.wrapper import Guardian
+from guardian.adapters.highway_env.monitor import ModelMonitor
+from guardian.evaluation.rollouts import highway_rollouts
+from guardian.model.roads import Road
+from guardian.model.reversing import reverse_reaches
+from guardian.adapters.highway_env.scene import road_scene
+from guardian.wrappers.guardian import Guardian
 
 SIM_DT = 1 / 15   # highway-v0's simulation step [s]
 
@@ -91,7 +93,7 @@ def test_a_guarded_car_never_reaches_a_car_that_backs_up_within_the_reach():
 def test_behind_a_queue_that_backs_up_the_reach_adds_up(monkeypatch):
     """The same falsifier behind two cars that reverse, the nearer one backing up to ``reverse_reach`` more
     than its leader: no contact from a start inside; with one reach per car (no queue rule) the draws crash."""
-    import guardian.sensing as sensing
+    import guardian.adapters.highway_env.scene as sensing
 
     def outcomes(seed):
         rng, covered = np.random.default_rng(seed), _highway(GuardianConfig())

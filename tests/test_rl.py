@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from guardian import Guardian, GuardianConfig
-from guardian.rl import applied_action, shielded_transitions
+from guardian.integrations.sb3 import applied_action, shielded_transitions
 
 FAST = "highway-fast-v0"
 
@@ -69,7 +69,7 @@ def _train(env, algo, steps, **kwargs):
     import torch
     from stable_baselines3 import DQN, SAC
 
-    from guardian.rl import ShieldedReplayBuffer
+    from guardian.integrations.sb3 import ShieldedReplayBuffer
 
     torch.set_num_threads(1)
     cls = {"DQN": DQN, "SAC": SAC}[algo]
@@ -146,7 +146,7 @@ def test_sac_stores_the_executed_continuous_action_in_its_own_scale():
 def test_refusals():
     from gymnasium import spaces
 
-    from guardian.rl import ShieldedReplayBuffer
+    from guardian.integrations.sb3 import ShieldedReplayBuffer
 
     box = spaces.Box(-1, 1, (3,))
     with pytest.raises(ValueError, match="optimize_memory_usage"):
@@ -157,7 +157,7 @@ def test_refusals():
 
 def test_guardian_rl_imports_without_stable_baselines3_and_says_what_to_install():
     code = ("import sys; sys.modules['stable_baselines3'] = None\n"
-            "import guardian.rl as rl\n"
+            "import guardian.integrations.sb3 as rl\n"
             "assert rl.shielded_transitions(1, 0.5, {}) == [(1, 0.5)]\n"
             "try:\n    rl.ShieldedReplayBuffer\nexcept ImportError as e:\n    print(e)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -1,5 +1,5 @@
 """The bicycle guardian on roads beyond one straight segment, on hand-built scenes without a simulator
-(guardian.bicycle with guardian.ego.RoadMapEgo on the RoadMaps of merge-v0 and exit-v0)."""
+(guardian.decide.bicycle with guardian.decide.kinematics.RoadMapEgo on the RoadMaps of merge-v0 and exit-v0)."""
 import math
 import warnings
 
@@ -7,11 +7,12 @@ import gymnasium as gym
 import highway_env  # noqa: F401
 import pytest
 
-from guardian.bicycle import BicycleGuardian, EgoState
+from guardian.decide.bicycle import BicycleGuardian
+from guardian.model.scene import EgoState
 from guardian.config import GuardianConfig
-from guardian.ego import RoadMapEgo
-from guardian.scene import Car, Scene
-from guardian.sensing import read_road
+from guardian.decide.kinematics import RoadMapEgo
+from guardian.model.scene import Car, Scene
+from guardian.adapters.highway_env.road import read_road
 
 warnings.filterwarnings("ignore", message=".*out of date.*")
 DT = 1 / 15
@@ -39,7 +40,7 @@ def _guard(road, meta=False):
 
 
 def _state(road, x, y, heading, speed, target=None):
-    """An EgoState at world ``(x, y)`` as guardian.sensing reads one (lane = slot, front along the lane)."""
+    """An EgoState at world ``(x, y)`` as guardian.adapters.highway_env.scene reads one (lane = slot, front along the lane)."""
     strip = road.on_branch(x, y)
     if strip is None:
         lane, front = int(round((y - road.y0) / road.lane_width)), x + 2.5

@@ -1,4 +1,4 @@
-"""Roads beyond one straight segment (guardian.roads, guardian.sensing.read_road): highway-env's networks read
+"""Roads beyond one straight segment (guardian.model.roads, guardian.adapters.highway_env.road.read_road): highway-env's networks read
 as a corridor with branches, the geometry checked against highway-env's own lanes, and refusals."""
 import math
 import warnings
@@ -12,8 +12,9 @@ from highway_env.road.road import RoadNetwork
 
 import envs  # noqa: F401 - registers guardian/Merge-v0
 from guardian.errors import ConfigError
-from guardian.roads import RoadMap, outline
-from guardian.sensing import Road, read_road, read_road_map
+from guardian.model.roads import RoadMap, outline
+from guardian.model.roads import Road
+from guardian.adapters.highway_env.road import read_road, read_road_map
 
 warnings.filterwarnings("ignore", message=".*out of date.*")
 
@@ -108,7 +109,7 @@ def test_hand_built_networks_refused_for_their_reason():
 ])
 def test_strip_geometry_agrees_with_highway_envs_lanes(lane):
     """Local coordinates, headings and positions of our own strips against highway-env's lane objects."""
-    from guardian.sensing import _strip
+    from guardian.adapters.highway_env.road import _strip
 
     strip = _strip(lane, 4.0, 0, 0.0, False, False)
     rng = np.random.default_rng(0)

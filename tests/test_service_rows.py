@@ -32,7 +32,7 @@ def service(library):
 
 def realistic(library, intention: str, n: int, seed: int = 0) -> list:
     """Steps that follow the model (the lead of ``intention``, the guardian's applied inputs)."""
-    from guardian.supervisor import IntentionAwareGuardian
+    from guardian.decide.lead import IntentionAwareGuardian
 
     rng = np.random.default_rng(seed)
     model, g = library.models[intention], IntentionAwareGuardian(library)

@@ -13,7 +13,7 @@ import numpy as np
 
 import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
 from envs.vehicles import COLOURS
-from guardian.panel import PANEL_HEIGHT, _font, with_panel
+from guardian.wrappers.panel import PANEL_HEIGHT, _font, with_panel
 
 ENV = "guardian/HighwayOvertake-v0"
 
@@ -95,7 +95,7 @@ def test_highway_v0_videos_from_the_rollout_play_at_the_policy_frequency_without
     """highway-env's own metadata doubles the rate (``video_real_time_ratio`` 2); the rollout sets it to 1."""
     from moviepy import VideoFileClip
 
-    code = ("from guardian.rollout import highway_rollouts; "
+    code = ("from guardian.evaluation.rollouts import highway_rollouts; "
             f"highway_rollouts('highway-fast-v0', 'random', 1, 0, action='meta', guardian=False, "
             f"env_config={{'duration': 2}}, video_dir={str(tmp_path / 'video')!r})")
     env = {k: v for k, v in os.environ.items() if k not in ("SDL_VIDEODRIVER", "XDG_RUNTIME_DIR")}

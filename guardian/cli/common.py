@@ -201,7 +201,7 @@ def load_library(args):
 
 
 def progress_bar(label: str):
-    from guardian.progress import ProgressBar
+    from guardian.cli.progress import ProgressBar
 
     return ProgressBar(label)
 

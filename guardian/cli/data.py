@@ -133,7 +133,7 @@ def cmd_replay(args) -> int:
 
         from guardian.highd.reader import recording_ids
         from guardian.highd.replay import default_sample
-        from guardian.rerun_log import log_highd_recording
+        from guardian.recording.rerun import log_highd_recording
 
         folder = Path(args.path) if args.path else default_sample()
         rid = recording_ids(folder)[0]

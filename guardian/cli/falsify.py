@@ -1,4 +1,4 @@
-"""``guardian falsify``: the falsification campaign (``guardian.falsify``) and its table."""
+"""``guardian falsify``: the falsification campaign (``guardian.evaluation.campaign``) and its table."""
 from __future__ import annotations
 
 from guardian.cli.common import count, emit, progress_bar, usage_error
@@ -40,7 +40,7 @@ def promise_broken(result: dict) -> bool:
 
 def cmd_falsify(args) -> int:
     from guardian.errors import SchedulerError
-    from guardian.falsify import matrix, run_campaign
+    from guardian.evaluation.campaign import matrix, run_campaign
 
     if args.scheduler and args.workers is not None:
         return usage_error(args, "--workers does not apply with --scheduler (the Dask cluster has its own workers)")
@@ -71,7 +71,7 @@ def cmd_falsify(args) -> int:
 
 
 def add_commands(sub) -> None:
-    from guardian.falsify import MPC_AGENTS, MULTI_AGENTS, ROAD_AGENTS
+    from guardian.evaluation.campaign import MPC_AGENTS, MULTI_AGENTS, ROAD_AGENTS
 
     p = sub.add_parser("falsify", help="the falsification campaign: adversarial agents, many seeds, one table")
     p.add_argument("--episodes", type=count(1), default=5, help="episodes per cell of the matrix (default 5)")

@@ -27,7 +27,7 @@ def cmd_itha_highway(args) -> int:
                                 progress=progress_bar("itha highway"))
     if args.rerun:
         import numpy as np
-        from guardian.rerun_log import HighwayRecorder
+        from guardian.recording.rerun import HighwayRecorder
 
         with HighwayRecorder(args.rerun, prm.n_lanes) as rec:
             for oa in which:

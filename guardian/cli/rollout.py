@@ -30,8 +30,7 @@ def cmd_rollout(args) -> int:
     from envs.agents import AGENTS, BASELINES
     from envs.mpc import STYLES
     from guardian.errors import ConfigError
-    from guardian.rollout import (OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, _refuse_overridden, highway_env_config,
-                                  highway_rollouts)
+    from guardian.evaluation.rollouts import OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, _refuse_overridden, highway_env_config, highway_rollouts
 
     if args.env not in gym.registry:
         known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "exit", "guardian/")))
@@ -109,7 +108,7 @@ def cmd_rollout(args) -> int:
 
 def _inapplicable(args, overtake: bool) -> str | None:
     """Why an option given does not apply to this environment (None when all apply)."""
-    from guardian.rollout import OVERTAKE_ENV
+    from guardian.evaluation.rollouts import OVERTAKE_ENV
 
     defaults = {"intention": "cautious", "disturbance": "random", "no_intention": False, "horizon": 10}
     if not overtake:
@@ -148,7 +147,7 @@ def _inapplicable(args, overtake: bool) -> str | None:
 def _is_highway_env(env_id: str) -> bool:
     from highway_env.envs.common.abstract import AbstractEnv
 
-    from guardian.env_checks import env_class
+    from guardian.adapters.highway_env.checks import env_class
 
     try:
         cls = env_class(env_id)
@@ -163,7 +162,7 @@ ACTION_NAMES = {"DiscreteMetaAction": "meta", "ContinuousAction": "continuous", 
 def action_name(env_id: str, action: str | None, env_config: dict) -> str:
     """The action type the rollout ran: ``--action``, else the config's, else the env's own (the inner type
     under ``MultiAgentAction``)."""
-    from guardian.env_checks import action_types
+    from guardian.adapters.highway_env.checks import action_types
 
     if action is not None:
         return action
@@ -174,8 +173,8 @@ def action_name(env_id: str, action: str | None, env_config: dict) -> str:
 def env_config_option(env_id: str, pairs: list) -> dict:
     """``KEY=VALUE`` pairs (values read as JSON, else as text) or JSON objects as the env's config, later
     ones overriding earlier ones; a key the env does not have, or a value not of its kind or out of its
-    range (``guardian.env_checks.check_config``), is refused with its name."""
-    from guardian.env_checks import check_config, env_class
+    range (``guardian.adapters.highway_env.checks.check_config``), is refused with its name."""
+    from guardian.adapters.highway_env.checks import check_config, env_class
 
     defaults = env_class(env_id).default_config()
     out = {}
@@ -205,7 +204,7 @@ def env_config_option(env_id: str, pairs: list) -> dict:
 
 def _conflicts(args, env_config: dict) -> str | None:
     """``--controlled`` beside a config action (each car's action is ``--action``'s). An option and the config
-    key it sets are refused by ``guardian.rollout.highway_env_config``."""
+    key it sets are refused by ``guardian.evaluation.rollouts.highway_env_config``."""
     if args.controlled is not None and "action" in env_config:
         return "--controlled sets the action (MultiAgentAction of --action); --env-config action does not apply with it"
     return None
@@ -213,7 +212,7 @@ def _conflicts(args, env_config: dict) -> str | None:
 
 def _needs_cars(args, env_config: dict, overtake: bool) -> str | None:
     """``--traffic`` on an env without a car count, ``--overapprox`` with one guarded car."""
-    from guardian.env_checks import env_class
+    from guardian.adapters.highway_env.checks import env_class
 
     if args.traffic is not None and not overtake and "vehicles_count" not in env_class(args.env).default_config():
         return f"--traffic sets the config vehicles_count; {args.env} has none (its traffic is its own)"

@@ -24,7 +24,7 @@ def _pair(description: str) -> dict:
 
 RECORD = {
     "type": "object", "additionalProperties": False,
-    "description": "What the guardian did at one step (guardian.supervisor.GuardianRecord).",
+    "description": "What the guardian did at one step (guardian.decide.lead.GuardianRecord).",
     "required": ["t", "state", "proposed", "applied", "overridden", "changed", "active_set", "valid_intentions",
                  "identified", "in_invariant_set", "failsafe", "admissible", "throttle_range", "steering_range"],
     "properties": {

@@ -103,7 +103,7 @@ def warm_up(library, steps: int = 40) -> None:
     cache or compiled), pydantic's validators and the estimator's arrays: a guardian is driven through
     trajectories of both intentions, so the identified sets' supervisors run too.
     """
-    from guardian.supervisor import IntentionAwareGuardian
+    from guardian.decide.lead import IntentionAwareGuardian
     from intention.library import SET_NAMES
 
     for name in SET_NAMES:

@@ -1,6 +1,6 @@
 """Sessions of the guardian service, independent of any transport.
 
-One :class:`~guardian.supervisor.IntentionAwareGuardian` (hence one intention estimator) per
+One :class:`~guardian.decide.lead.IntentionAwareGuardian` (hence one intention estimator) per
 session. What keeps a session's estimate intact:
 
 - **Sequence numbers.** Step ``seq`` must be the session's next step (its record's ``t``). The same
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from guardian.errors import ServiceError
-from guardian.supervisor import IntentionAwareGuardian
+from guardian.decide.lead import IntentionAwareGuardian
 
 PRIORITY_NAMES = {"throttle": 0, "steering": 1}
 INPUT_NAMES = {i: n for n, i in PRIORITY_NAMES.items()}

@@ -3,7 +3,7 @@
 ``F_R`` (``lead_following_params``) is the maximal RCIS of the ego behind the lead in the right lane
 when the lead may brake as hard as its physical bound ``a_L^min`` allows (7.4 with the drag of (6.3)).
 It needs no intention, so it is the same set with ``--no-intention``; it is the set among traffic
-because the overtake sets ``C`` are "reach the left lane" sets (see ``guardian.pointmass``).
+because the overtake sets ``C`` are "reach the left lane" sets (see ``guardian.decide.overtake``).
 
 **Intention-aware.** The lead drives by one of the intention models (6.5)/(6.7); the estimator rules
 models out and never back in (6.9). For the models ``M`` not ruled out, the lead's next speed is

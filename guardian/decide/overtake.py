@@ -1,7 +1,7 @@
 """The overtake ego among traffic: the lead part (Chapter 6) composed with ITHA (Chapter 7).
 
 A decision object without a simulator: ``PointMassGuardian.step(x, scene, u)`` takes the overtake
-state ``x = [v_ex, y_e, h, v_Lx]`` (6.3), the other cars as ITHA agents (``guardian.scene.Scene``; the
+state ``x = [v_ex, y_e, h, v_Lx]`` (6.3), the other cars as ITHA agents (``guardian.model.scene.Scene``; the
 lead is not among them, ``x`` describes it) and the proposed input ``u = [a_ex, v_ey]``, and returns the
 input to apply and a ``Decision``.
 
@@ -20,7 +20,7 @@ therefore keeps the ego in
   that pair (``itha.car_following.MaximalSet`` with drag), so the ego can wait behind the lead for
   ever, down to standstill, without the left lane: this needs a safe set whose speed floor is 0, not
   the dissertation's 16 m/s. With the intention in use the guardian keeps ``F_R^M`` instead
-  (``guardian.lead_following``): ``F_R`` grown by the states from which braking reaches it under every
+  (``guardian.decide.lead_following``): ``F_R`` grown by the states from which braking reaches it under every
   lead of the intentions ``M`` the estimator has not ruled out, an RCIS of each of them; ``M`` only
   shrinks, so the set only grows, and with every intention ruled out it is ``F_R`` again.
 * ``C``: the active intention-aware set (Theorem 4), used while the body overlaps the left lane: the
@@ -35,7 +35,7 @@ both (whichever way the noise goes, the next state is in ``K``). If the left lan
 the entry must be responsible for the applied input's next speed. Without traffic (the two cars of Section 6.5) the guardian is
 exactly ``IntentionAwareGuardian``.
 
-When the parts do not intersect, they are dropped in the order of ``guardian.decision.LEVELS``.
+When the parts do not intersect, they are dropped in the order of ``guardian.model.decision.LEVELS``.
 """
 from __future__ import annotations
 
@@ -44,12 +44,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from guardian.decision import Decision, Entry
-from guardian.ego import PointMassEgo
-from guardian.lead_following import LeadFollowing, lead_following_params  # noqa: F401 - re-exported
-from guardian.scene import Scene
-from guardian.supervisor import FAILSAFE_INPUT, IntentionAwareGuardian
-from guardian.traffic import TrafficSupervisor
+from guardian.model.decision import Decision, Entry
+from guardian.decide.kinematics import PointMassEgo
+from guardian.decide.lead_following import LeadFollowing, lead_following_params  # noqa: F401 - re-exported
+from guardian.model.scene import Scene
+from guardian.decide.lead import FAILSAFE_INPUT, IntentionAwareGuardian
+from guardian.decide.traffic import TrafficSupervisor
 from intention.params import OvertakeParams
 from itha.car_following import CarFollowingParams, MaximalSet
 from rcis.admissible import AdmissibleQuery
@@ -101,7 +101,7 @@ class PointMassGuardian:
     traffic : bool
         Other cars may share the road: compose with ITHA and keep ``K``; False gives the two-car
         guardian of Section 6.5 unchanged.
-    config : guardian.wrapper.GuardianConfig
+    config : guardian.wrappers.guardian.GuardianConfig
     stops_at_zero : bool
         The simulator clips the ego's speed at 0 (``HighwayOvertake-v0`` does).
     """
@@ -134,7 +134,7 @@ class PointMassGuardian:
 
     def in_follow_set(self, x) -> bool:
         """``x`` in ``F_R^M``: the body in the right lane only, the lead ahead, self-safe towards it for
-        every lead of the intentions not ruled out (``guardian.lead_following``)."""
+        every lead of the intentions not ruled out (``guardian.decide.lead_following``)."""
         x = np.asarray(x, float)
         return (self.kin.lanes_at(float(x[1])) == {RIGHT_LANE} and x[2] > 0 and x[1] >= self.params.y_e_bounds[0]
                 and self.following.contains(x, self.intentions()))

@@ -215,7 +215,7 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
 
 # ---- highway-env environments under the Guardian ----------------------------------------------------
 class GuardianRecorder(_Closing):
-    """Rollouts of ``guardian.wrapper.Guardian`` on a highway-env environment, in simulator coordinates.
+    """Rollouts of ``guardian.wrappers.guardian.Guardian`` on a highway-env environment, in simulator coordinates.
 
     * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
       ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in

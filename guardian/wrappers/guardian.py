@@ -1,14 +1,14 @@
 """The guardian: one gymnasium wrapper between any highway-env agent and the vehicle.
 
 The wrapper decides nothing. Every simulation step (highway-env calls the ego's ``act(None)`` once
-per simulation step, after the policy step's ``act(action)``) it reads the state (``guardian.sensing``),
+per simulation step, after the policy step's ``act(action)``) it reads the state (``guardian.adapters.highway_env.scene``),
 asks the decision object, applies its answer to the vehicle and keeps the record:
 
-* ``guardian/HighwayOvertake-v0``: ``guardian.pointmass.PointMassGuardian`` (the lead part of
+* ``guardian/HighwayOvertake-v0``: ``guardian.decide.overtake.PointMassGuardian`` (the lead part of
   Chapter 6 composed with ITHA; the composed invariant set is explained there);
 * highway-env's roads (the ``highway-v0`` family, ``merge-v0``, ``merge-generic-v0``, ``exit-v0``):
-  ``guardian.bicycle.BicycleGuardian`` (ITHA for highway-env's bicycle) on the road ``guardian.sensing``
-  reads (one straight road, or a ``guardian.roads.RoadMap`` with on-ramps, exits and lanes that end).
+  ``guardian.decide.bicycle.BicycleGuardian`` (ITHA for highway-env's bicycle) on the road ``guardian.adapters.highway_env.scene``
+  reads (one straight road, or a ``guardian.model.roads.RoadMap`` with on-ramps, exits and lanes that end).
 
 **Many guarded cars.** With highway-env's ``MultiAgentAction`` every controlled car gets its own decision
 object and model monitor (one object per car, nothing shared but the road they read), and each sees the
@@ -46,7 +46,7 @@ not see are counted (``unsupervised_steps``).
      "sim_steps": int, "clipped_steps": int, "model_clip_steps": int,
      "follower_dropped_steps": int, "conflict_steps": int,
      "failsafe_steps": int, "unsupervised_steps": int, "reattached": bool,
-     "model_violations": {"ego": int, "lead": int, "traffic": int,   # simulation steps (guardian.monitor)
+     "model_violations": {"ego": int, "lead": int, "traffic": int,   # simulation steps (guardian.adapters.highway_env.monitor)
                           "traffic_blind": int, "traffic_reversing_uncovered": int},
      "admissible_acceleration": [[lo, hi], ...],   # at the applied lateral input, last simulation step
      "admissible_lateral": [[lo, hi], ...]}        # at the applied acceleration (overtake scenarios)
@@ -87,16 +87,17 @@ from highway_env.vehicle.controller import ControlledVehicle
 
 from envs.highway_overtake import HighwayOvertakeEnv
 from envs.vehicles import OvertakeEgo
-from guardian.bicycle import BicycleGuardian
+from guardian.decide.bicycle import BicycleGuardian
 from guardian.config import GuardianConfig
-from guardian.decision import LEVELS
-from guardian.ego import BicycleEgo, RoadMapEgo
-from guardian.env_checks import check_config, merge_limits
+from guardian.model.decision import LEVELS
+from guardian.decide.kinematics import BicycleEgo, RoadMapEgo
+from guardian.adapters.highway_env.checks import check_config, merge_limits
 from guardian.errors import ConfigError
-from guardian.monitor import COUNTS as MONITOR_COUNTS, ModelMonitor, no_counts
-from guardian.pointmass import PointMassGuardian
-from guardian.roads import RoadMap
-from guardian.sensing import bicycle_state, read_road, road_scene
+from guardian.adapters.highway_env.monitor import COUNTS as MONITOR_COUNTS, ModelMonitor, no_counts
+from guardian.decide.overtake import PointMassGuardian
+from guardian.model.roads import RoadMap
+from guardian.adapters.highway_env.scene import bicycle_state, road_scene
+from guardian.adapters.highway_env.road import read_road
 from itha.road import example8_order
 
 __all__ = ["Guardian", "GuardianConfig"]
@@ -147,7 +148,7 @@ def _multi(base) -> bool:
 
 
 def _check_env(base) -> str:
-    """Refuse a config the guardian cannot supervise (``guardian.env_checks``); the action kind."""
+    """Refuse a config the guardian cannot supervise (``guardian.adapters.highway_env.checks``); the action kind."""
     kind = _action_kind(base)
     name = base.spec.id if base.spec is not None else type(base).__name__
     check_config(type(base).default_config(), base.config, f"Guardian: {name}")
@@ -325,7 +326,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return all(self.starts_inside())
 
     def _scene(self, base, *args, **kwargs):
-        """``guardian.sensing.road_scene`` of this road, with this config's cover for reversing traffic."""
+        """``guardian.adapters.highway_env.scene.road_scene`` of this road, with this config's cover for reversing traffic."""
         return road_scene(base, self.road, *args, reverse_reach=self.config.reverse_reach, **kwargs)
 
     def starts_inside(self) -> list:
@@ -531,7 +532,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         frame = self.env.render()
         if not isinstance(frame, np.ndarray):
             return frame
-        from guardian.panel import with_panel
+        from guardian.wrappers.panel import with_panel
 
         base = self.env.unwrapped
         a = self.config.traffic_accel if self.scenario == "highway" else base.params.a_ex_bounds[1]

@@ -23,7 +23,7 @@ transitions the model does not cover:
   the guarded car that highway-env's connected-lane search (merge-v1, exit-v1) finds.
 * traffic that backs up further than the guardian's cover (``traffic_reversing_uncovered``): at each
   simulation step the guardian takes a car seen driving backwards to stay ahead of ``x - reach`` from
-  then on, ``reach`` by ``guardian.sensing.reverse_reaches`` (``GuardianConfig.reverse_reach``, more behind
+  then on, ``reach`` by ``guardian.model.reversing.reverse_reaches`` (``GuardianConfig.reverse_reach``, more behind
   a car that reverses too; here cars follow each other on highway-env's lane index); a step counts when
   some car is behind the furthest-forward of the bounds given since its reversal began (it ends at a step
   seen at speed 0 or above).
@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from guardian.adapters.highway_env.blindness import traffic_blind_to
 from guardian.config import REVERSE_REACH
+from guardian.model.reversing import reverse_reaches
 
 TOL = 1e-6
 COUNTS = ("ego", "lead", "traffic", "traffic_blind", "traffic_reversing_uncovered")  # per simulation step
@@ -115,8 +117,6 @@ class ModelMonitor:
 
     def _reversal_step(self, cars, x_v) -> None:
         """Keep each reversing car's bound; ``_uncovered``: 1 when some car is now behind its bound."""
-        from guardian.sensing import reverse_reaches
-
         self._uncovered = 0
         if not np.any(x_v[:, 1] < 0):
             self._bound = {}
@@ -159,31 +159,3 @@ class ModelMonitor:
         progress_ok = self.ego_kin.min_progress(v0, heading) - TOL <= progress <= self.dt * v0 + TOL
         return speed_ok and progress_ok
 
-
-BLIND_RANGE = 100.0  # [m] traffic cars farther than this along x are not asked (a segment's end is nearer)
-
-
-def traffic_blind_to(road, car) -> bool:
-    """Whether some traffic car misses ``car`` ahead or behind it, in its lane or a lane beside it, where
-    highway-env's connected-lane search would find it (see the module docstring)."""
-    from highway_env.vehicle.behavior import IDMVehicle
-
-    if getattr(road, "neighbour_vehicles_connected_lanes", True) or car.lane_index is None \
-            or sum(len(ends) for ends in road.network.graph.values()) < 2:
-        return False  # one segment per lane: both searches are the same
-    x = float(car.position[0])
-    for other in road.vehicles:
-        if other is car or not isinstance(other, IDMVehicle) or other.crashed \
-                or abs(float(other.position[0]) - x) > BLIND_RANGE or other.lane_index is None:
-            continue
-        for lane in [other.lane_index, *road.network.side_lanes(other.lane_index)]:
-            if lane[:2] == car.lane_index[:2] or car in road.neighbour_vehicles(other, lane):
-                continue  # on the car's own segment the v0 search finds it whenever the other would
-            road.neighbour_vehicles_connected_lanes = True
-            try:
-                seen = car in road.neighbour_vehicles(other, lane)
-            finally:
-                road.neighbour_vehicles_connected_lanes = False
-            if seen:
-                return True
-    return False

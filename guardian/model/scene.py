@@ -2,11 +2,11 @@
 agents (7.3).
 
 Positions are front bumpers along the direction of travel (on roads beyond one straight segment: the
-longitudinal coordinate along the car's lane, see ``guardian.roads``); lanes are ITHA numbers
+longitudinal coordinate along the car's lane, see ``guardian.model.roads``); lanes are ITHA numbers
 (1 = rightmost); a car changing lanes occupies both. A car that ``announces`` takes part in the ordered
 over-approximation (another guarded car: it announces its lane changes in Example 8's order, or yields);
 every other car (highway-env's IDM traffic, an obstacle, a lane's end) announces nothing. Built from a
-simulator by ``guardian.sensing`` and by hand in the tests: no simulator in here.
+simulator by ``guardian.adapters.highway_env.scene`` and by hand in the tests: no simulator in here.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ class Car:
     crashed: bool = False     # has already collided (a wreck: it may stop faster than the model allows)
     fixed: bool = False       # never moves and is never pushed (an obstacle, a lane's end)
     blind: bool = False       # does not see the ego (highway-env's v0 search): neither brakes for it nor
-                              # weighs it when changing lanes (guardian.sensing.blind_to)
+                              # weighs it when changing lanes (guardian.adapters.highway_env.blindness.blind_to)
 
 
 @dataclass(frozen=True)
@@ -76,3 +76,17 @@ class Scene:
         fronts, cars = order[lane]
         k = bisect.bisect_right(fronts, car.front)
         return cars[k] if k < len(cars) else None
+
+
+@dataclass(frozen=True)
+class EgoState:
+    """The bicycle ego at one instant, in highway-env's coordinates (lane ids 0 = leftmost; on a
+    ``guardian.model.roads.RoadMap`` lanes are slots and ``front`` is along the lane's chain)."""
+
+    front: float            # front bumper along the road [m]
+    y: float                # lateral position of the centre [m]
+    heading: float          # [rad]
+    speed: float            # [m/s]
+    lane: int               # highway-env lane id of the lane it is closest to
+    target_lane: int        # the lane its controller steers to (meta agents); ``lane`` otherwise
+    x: float = 0.0          # world position of the centre [m] (read on a RoadMap only)

@@ -1,6 +1,6 @@
 """What the guardian decided in one simulation step, and the order in which it gives up guarantees.
 
-Every decision object (``guardian.pointmass.PointMassGuardian``, ``guardian.bicycle.BicycleGuardian``)
+Every decision object (``guardian.decide.overtake.PointMassGuardian``, ``guardian.decide.bicycle.BicycleGuardian``)
 answers ``step(...) -> (applied, Decision)``. The admissible set is built from parts; when they do
 not intersect, parts are dropped in a fixed order (``LEVELS``), and the level reached is recorded:
 

@@ -12,10 +12,10 @@ answers into input constraints, exactly for the model that moves the ego.
   position moves by ``dt speed (cos, sin)(heading + beta)``, ``beta =
   atan(tan(steering) / 2)``; the heading turns by ``dt speed sin(beta) / (L/2)``,
   on one straight road along x;
-* ``RoadMapEgo``: the same bicycle on a road beyond one straight segment (``guardian.roads.RoadMap``):
+* ``RoadMapEgo``: the same bicycle on a road beyond one straight segment (``guardian.model.roads.RoadMap``):
   lanes that begin and end, on-ramps and exits; headings are measured against the lane's.
 
-``guardian.bicycle.BicycleGuardian`` reads the two bicycle classes through one interface that takes the
+``guardian.decide.bicycle.BicycleGuardian`` reads the two bicycle classes through one interface that takes the
 ego's state (``occupied``, ``candidates``, ``after``, ``path_lanes_of``, ...).
 """
 from __future__ import annotations
@@ -233,7 +233,7 @@ class BicycleEgo:
                       key=lambda s: abs(s - proposed))
         return [proposed] + rest
 
-    # ---- the interface BicycleGuardian reads (states are guardian.bicycle.EgoState) -------------------
+    # ---- the interface BicycleGuardian reads (states are guardian.model.scene.EgoState) -------------------
     def occupied(self, ego) -> frozenset:
         """Lanes (highway-env ids) the body, widened by ``LATERAL_MARGIN``, overlaps now."""
         return self.swept_lanes(ego.y, ego.heading, 0.0)
@@ -275,7 +275,7 @@ class BicycleEgo:
 
 
 class RoadMapEgo(BicycleEgo):
-    """highway-env's bicycle on a ``guardian.roads.RoadMap``: lanes are slots (highway-env ids of the
+    """highway-env's bicycle on a ``guardian.model.roads.RoadMap``: lanes are slots (highway-env ids of the
     corridor, 0 = leftmost), present where the map says; on a branch (an on-ramp's approach, an exit's
     curve) headings are measured against the branch's. The body must stay on the road (every point of its
     outline in some lane's strip); the straightening aligns the heading with the lane's a step ahead.
@@ -333,7 +333,7 @@ class RoadMapEgo(BicycleEgo):
         """How far the body, widened by ``LATERAL_MARGIN`` (as against lane borders), reaches off the road: a
         body kept at depth 0 stays that far inside the road's edges, so a lane that begins beyond an edge
         (an on-ramp's parallel part, an exit lane) does not begin under it."""
-        from guardian.roads import outline
+        from guardian.model.roads import outline
 
         m = 2 * self.LATERAL_MARGIN
         px, py = outline(xs, ys, hs, self.length + m, self.width + m)

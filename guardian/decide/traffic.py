@@ -3,7 +3,7 @@
 A plain decision object (no simulator): it receives a ``Scene`` — the ego and the
 other cars as ITHA agents (front-bumper position along the road, speed, the lanes
 each occupies, length; lane 1 is the rightmost) — and answers in the ego's *next
-speed*, so that each ego kinematics (``guardian.ego``) converts the answer to its
+speed*, so that each ego kinematics (``guardian.decide.kinematics``) converts the answer to its
 own input exactly:
 
 * ``self_safe_speeds``: next speeds keeping the ego in the car-following RCIS with
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from guardian.scene import Car, Scene  # noqa: F401 (the scene the decisions read)
+from guardian.model.scene import Car, Scene  # noqa: F401 (the scene the decisions read)
 from itha.car_following import CarFollowingParams, MaximalSet
 from itha.responsibility import EgoSupervisor
 from itha.road import LEFT, RIGHT, HighwayParams

@@ -28,8 +28,8 @@ envs fail with continuous actions), ``guardian/Merge-v0`` with merge-v0's traffi
 traffic, 20 s at 5 Hz) for both over-approximations, with random, reckless and merge agents and both
 action types.
 
-The counts are ``guardian.rollout.HighwayTally``'s (each by a written rule; the fault judge is
-``guardian.judge``); ``exceptions`` counts episodes that raised.
+The counts are ``guardian.evaluation.tally.HighwayTally``'s (each by a written rule; the fault judge is
+``guardian.evaluation.judge``); ``exceptions`` counts episodes that raised.
 """
 from __future__ import annotations
 
@@ -161,7 +161,7 @@ def _library(traffic: int, cache_dir):
 
 def run_episode(cell: Cell, seed: int, cache_dir=None) -> dict:
     """One episode of ``cell``: the tally's counts, or the exception it raised."""
-    from guardian.rollout import highway_rollouts
+    from guardian.evaluation.rollouts import highway_rollouts
 
     from guardian.config import GuardianConfig
 

@@ -1,246 +1,9 @@
-"""Supervised rollouts: one loop, one tally, for every environment and agent.
-
-``run_episodes`` is the loop (one seeding rule, one progress callback, observers closed on every
-exit); ``highway_rollouts`` composes it with the one ``Guardian`` and ``HighwayTally`` on any supported
-environment: ``guardian/Overtake-v0`` (Section 6.5.3's two cars), ``guardian/HighwayOvertake-v0`` and
-the ``highway-v0`` family.
-"""
+"""The counts of a highway-env rollout, each by a written rule (``HighwayTally.result``)."""
 from __future__ import annotations
-
-import os
-import time
 
 import numpy as np
 
-from envs.agents import make_agent
-
-
-class Observer:
-    """What a rollout counts or records; ``run_episodes`` calls these hooks (all optional)."""
-
-    def start_episode(self, env, episode: int, obs) -> None: ...
-
-    def before_step(self, env, obs, action) -> None: ...
-
-    def after_step(self, env, obs, action, info: dict) -> None: ...
-
-    def end_episode(self, env, episode: int) -> None: ...
-
-    def close(self) -> None: ...
-
-
-def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None, algo: str | None = None,
-                 first: int = 0) -> None:
-    """The rollout loop: ``episodes`` seeded episodes of ``agent`` on ``env``.
-
-    Parameters
-    ----------
-    env : gymnasium.Env
-        The environment, wrapped as the caller wants (guardian, video, ...). It is closed at the end.
-    agent : str
-        A name of ``envs.agents.AGENTS``, or ``policy:PATH`` (a stable-baselines3 policy file; ``algo``
-        names its algorithm when the file should not be asked).
-    episodes, seed : int
-        Episode i resets the env with seed ``seed + i`` and builds the agent with
-        ``numpy.random.default_rng([seed, i])``: the one seeding rule of every rollout.
-    observers : list of Observer
-        Told of every episode and step; closed on every exit, an exception too.
-    progress : callable, optional
-        ``progress(done, total)`` after each episode.
-    first : int
-        Run episodes ``first .. first + episodes - 1`` of the rule: episode i of a longer run, alone.
-    """
-    try:
-        for ep in range(first, first + episodes):
-            obs, _ = env.reset(seed=seed + ep)
-            act = make_agent(agent, env, np.random.default_rng([seed, ep]), algo=algo)
-            for o in observers:
-                o.start_episode(env, ep, obs)
-            done = False
-            while not done:
-                action = act(obs)
-                for o in observers:
-                    o.before_step(env, obs, action)
-                obs, _, terminated, truncated, info = env.step(action)
-                for o in observers:
-                    o.after_step(env, obs, action, info)
-                done = terminated or truncated
-            for o in observers:
-                o.end_episode(env, ep)
-            if progress:
-                progress(ep + 1 - first, episodes)
-    finally:
-        env.close()
-        for o in observers:
-            o.close()
-
-
-# ---- highway-env environments (guardian/Overtake-v0, guardian/HighwayOvertake-v0, the highway-v0 family) ----
-OVERTAKE_ENV = "guardian/HighwayOvertake-v0"
-TWO_CARS_ENV = "guardian/Overtake-v0"
-OVERTAKE_ENVS = (TWO_CARS_ENV, OVERTAKE_ENV)
-ACTIONS = {"meta": {"type": "DiscreteMetaAction"}, "continuous": {"type": "ContinuousAction"}}
-
-
-def highway_env_config(env_id: str, action: str | None, intention: str | None = None, disturbance: str = "random",
-                       traffic: int | None = None, library=None, extra: dict | None = None,
-                       controlled: int | None = None) -> dict:
-    """The env config of a rollout: the action type, and on HighwayOvertake the scenario's choices.
-
-    On HighwayOvertake initial states are drawn inside ``C_bnd`` (Theorem 4's assumption). ``controlled``:
-    that many controlled cars under highway-env's ``MultiAgentAction`` (one agent and one guardian each).
-    """
-    from guardian.env_checks import action_types, env_class, merge_limits
-
-    if controlled is not None and env_id in OVERTAKE_ENVS:
-        raise ValueError(f"{env_id} has one ego; several controlled cars drive highway-env's roads")
-    extra = dict(extra or {})
-    chosen = {}   # what this rollout's own arguments set: never also given in ``extra`` (one would be dropped)
-    if env_id in OVERTAKE_ENVS:
-        from envs.highway_overtake import HighwayOvertakeEnv
-
-        chosen.update({"intention": intention or "cautious", "disturbance": disturbance})
-        if traffic is not None and env_id == OVERTAKE_ENV:
-            chosen["traffic_count"] = traffic
-            if "traffic_from_behind" not in extra:
-                chosen["traffic_from_behind"] = min(HighwayOvertakeEnv.default_config()["traffic_from_behind"], traffic)
-        if library is not None:
-            chosen.update({"initial_region": library.region("bounded_velocity"), "params": library.params})
-        if action == "meta":
-            chosen["action"] = dict(ACTIONS["meta"])
-    else:
-        if action is not None:
-            chosen["action"] = dict(ACTIONS[action])
-        if traffic is not None:
-            chosen["vehicles_count"] = traffic
-        if controlled is not None:
-            chosen["controlled_vehicles"] = controlled
-    _refuse_overridden(env_id, extra, chosen)
-    config = {**extra, **chosen}
-    if env_id in OVERTAKE_ENVS:
-        cars = config.get("traffic_count", env_class(env_id).default_config()["traffic_count"])
-        if config.get("traffic_from_behind", 0) > cars:
-            raise ValueError(f"{env_id}: traffic_from_behind={config['traffic_from_behind']} is more than the "
-                             f"{cars} traffic cars (traffic_count)")
-    else:
-        if controlled is not None:
-            inner = config.get("action") or {"type": _default_action(env_id)}
-            config["action"] = {"type": "MultiAgentAction", "action_config": dict(inner)}
-        kind, inner = action_types(env_id, config)
-        merge_limits(env_class(env_id), env_id, inner == "ContinuousAction", kind == "MultiAgentAction")
-    return config
-
-
-SET_BY = {"intention": "--intention", "disturbance": "--disturbance", "traffic_count": "--traffic",
-          "traffic_from_behind": "--traffic", "vehicles_count": "--traffic", "action": "--action",
-          "controlled_vehicles": "--controlled", "initial_region": "the set library (starts are drawn in its C_bnd)",
-          "params": "the set library's parameters (--ego-speed-min)"}
-
-
-def _refuse_overridden(env_id: str, extra: dict, chosen: dict) -> None:
-    """A config key the rollout sets itself cannot also come in ``extra``: one of the two would be dropped
-    without a word."""
-    clash = [k for k in chosen if k in extra]
-    if clash:
-        key = clash[0]
-        raise ValueError(f"{env_id}: config key {key!r} is set by {SET_BY[key]}; give it there, not in the env config")
-
-
-def _default_action(env_id: str) -> str:
-    """The env's own action type (its class's default config)."""
-    from guardian.env_checks import env_class
-
-    return env_class(env_id).default_config()["action"]["type"]
-
-
-def highway_rollouts(env_id: str, agent: str, episodes: int, seed: int, *, action: str | None = None,
-                     guardian: bool = True, library=None, intention: str | None = None,
-                     disturbance: str = "random", traffic: int | None = None, use_intention: bool = True,
-                     env_config: dict | None = None, guardian_config=None, safe_start: bool = False,
-                     horizon: int = 10, progress=None, rerun_path=None, video_dir=None,
-                     policy_algo: str | None = None, controlled: int | None = None, first_episode: int = 0) -> dict:
-    """Seeded episodes of one agent on a highway-env environment, with or without the ``Guardian``.
-
-    Parameters
-    ----------
-    env_id : str
-        ``guardian/Overtake-v0``, ``guardian/HighwayOvertake-v0`` or a highway-env id (``highway-v0``, ...).
-    agent : str
-        A name of ``envs.agents.AGENTS``, or ``policy:PATH`` (a stable-baselines3 policy file).
-    episodes, seed, first_episode : int
-        Seeded as ``run_episodes`` says; ``first_episode`` skips to episode i of a longer run.
-    action : str, optional
-        ``continuous`` or ``meta`` (default: the env's own action type).
-    guardian, use_intention : bool
-        Wrap the env in the ``Guardian``; let it use the estimated intention.
-    library : intention.library.OvertakeLibrary, optional
-        The sets (HighwayOvertake: initial states are drawn inside ``C_bnd``).
-    intention, disturbance, traffic : optional
-        HighwayOvertake's lead intention and disturbance mode; the number of other cars.
-    env_config, guardian_config : optional
-        Extra env config; the ``GuardianConfig``.
-    safe_start : bool
-        Draw each start again until it lies in the guardian's invariant sets (guarded runs only).
-    horizon : int
-        The intention estimator's window N (overtake scenarios; the guardian's and the tally's).
-    progress : callable, optional
-        ``progress(done, total)`` after each episode.
-    rerun_path, video_dir : path, optional
-        Write a rerun recording; write each episode as MP4 into this folder.
-    policy_algo : str, optional
-        The algorithm of a ``policy:PATH`` agent (default: read from the file).
-    controlled : int, optional
-        That many controlled cars (``MultiAgentAction``), each with its own agent and guardian.
-
-    Returns
-    -------
-    dict
-        The counts of ``HighwayTally.result`` (documented there, with the fault judge's rules in
-        ``guardian.judge``).
-    """
-    import gymnasium as gym
-
-    import envs  # noqa: F401 - registers guardian/HighwayOvertake-v0
-    import highway_env  # noqa: F401 - registers the highway-env environments
-    from guardian.errors import ConfigError
-    from guardian.wrapper import Guardian, GuardianConfig
-
-    overtake = env_id in OVERTAKE_ENVS
-    config = highway_env_config(env_id, action, intention, disturbance, traffic, library, env_config, controlled)
-    if video_dir:  # SDL's offscreen driver: no display is looked for (and no XDG_RUNTIME_DIR error)
-        os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
-    try:
-        env = gym.make(env_id, config=config, render_mode="rgb_array" if video_dir else None)
-    except ConfigError:
-        raise
-    except Exception as exc:  # highway-env's own failure on a config it cannot take: name what was given
-        given = ([f"the config {sorted(env_config)}"] if env_config else []) + \
-            ([f"{controlled} controlled cars"] if controlled is not None else []) + \
-            ([f"{traffic} traffic cars"] if traffic is not None else [])
-        if not given:
-            raise
-        raise ConfigError(f"{env_id} cannot be made with {' and '.join(given)} "
-                          f"({type(exc).__name__}: {exc})") from exc
-    if video_dir:  # highway-env's default ratio (2) makes videos play at double speed
-        env.unwrapped.update_metadata(video_real_time_ratio=1)
-    if guardian:
-        gcfg = guardian_config or GuardianConfig(use_intention=use_intention, horizon=horizon)
-        if safe_start:
-            import dataclasses
-
-            gcfg = dataclasses.replace(gcfg, resample_unsafe_start=True)
-        env = Guardian(env, library, gcfg)
-    if video_dir:
-        env = gym.wrappers.RecordVideo(env, str(video_dir), episode_trigger=lambda e: True,
-                                       name_prefix=env_id.replace("/", "-"), disable_logger=True)
-    recorder = None
-    if rerun_path is not None:
-        from guardian.rerun_log import GuardianRecorder
-        recorder = GuardianRecorder(rerun_path)
-    tally = HighwayTally(env, overtake, guardian, recorder, library, horizon)
-    run_episodes(env, agent, episodes, seed, [tally], progress, algo=policy_algo, first=first_episode)
-    return tally.result(episodes)
-
+from guardian.evaluation.episodes import Observer
 
 COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
           "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
@@ -281,7 +44,7 @@ class HighwayTally(Observer):
         self.multi = False
 
     def _watch_the_lead(self, env) -> None:
-        from guardian.monitor import ModelMonitor
+        from guardian.adapters.highway_env.monitor import ModelMonitor
         from intention.estimator import IntentionEstimator
         from intention.models import intention_models
 
@@ -297,9 +60,9 @@ class HighwayTally(Observer):
                                         env.unwrapped.params, candidates, ego_stops_at_zero=True)
 
     def start_episode(self, env, episode, obs) -> None:
-        from guardian.judge import FaultJudge
-        from guardian.roads import RoadMap
-        from guardian.sensing import read_road
+        from guardian.evaluation.judge import FaultJudge
+        from guardian.model.roads import RoadMap
+        from guardian.adapters.highway_env.road import read_road
 
         base = env.unwrapped
         if self.estimator is not None:
@@ -343,13 +106,13 @@ class HighwayTally(Observer):
             return bool(_guardian_of(env).start_inside())
         if self.overtake:
             if self._aside is None:
-                from guardian.pointmass import PointMassGuardian
+                from guardian.decide.overtake import PointMassGuardian
                 from guardian.config import GuardianConfig
 
                 self._aside = PointMassGuardian(self.library, self.road.n_lanes,
                                                 base.vehicle.WIDTH / 2 / base.config["lateral_scale"],
                                                 int(base.config["traffic_count"]) > 0, GuardianConfig())
-            from guardian.sensing import road_scene
+            from guardian.adapters.highway_env.scene import road_scene
 
             return bool(self._aside.inside(base.overtake_state(), road_scene(base, self.road)))
         return all(c.inside(base) for c in self.checkers)
@@ -464,7 +227,7 @@ class HighwayTally(Observer):
           one-step extrapolation of the bodies); with one ego, episodes whose ego crashed; with several
           controlled cars, a crash between two of them counts once. ``ego_at_fault_collisions``: of those in
           episodes starting inside the guardian's invariant sets (every guarded car's start), the ones
-          ``guardian.judge.FaultJudge`` gives to a guarded car (the one judged, or a guarded partner); crashes
+          ``guardian.evaluation.judge.FaultJudge`` gives to a guarded car (the one judged, or a guarded partner); crashes
           after a start outside are counted apart (``collisions_after_outside_starts``,
           ``ego_at_fault_after_outside_starts``). ``starts_outside``: episodes whose start lay outside the
           sets for some guarded car (with the guardian, its own test; without, self-safety towards the cars
@@ -473,14 +236,14 @@ class HighwayTally(Observer):
           self-safe input left (highway-env roads; per guarded car), with or without the guardian.
         * ``unchecked_entries``: lanes a guarded car's body began to overlap in a step whose record lists the
           lane neither among the lanes the guardian held the car in at the step's start nor among the
-          entries it checked and found responsible during the step (``guardian.wrapper.allowed_lanes``; on
-          roads beyond one straight segment: slots of ``guardian.roads``, the body unwidened).
+          entries it checked and found responsible during the step (``guardian.wrappers.guardian.allowed_lanes``; on
+          roads beyond one straight segment: slots of ``guardian.model.roads``, the body unwidened).
         * ``traffic_blind_steps``: policy steps in which some traffic car did not see a guarded car its
-          model has it react to (``guardian.monitor.traffic_blind_to``: highway-env's v0 roads search one
+          model has it react to (``guardian.adapters.highway_env.blindness.traffic_blind_to``: highway-env's v0 roads search one
           lane segment; per guarded car); each crash row's ``steps_since_traffic_blind`` counts the policy
           steps since the crashed car's last such step (None: none this episode). Guarded runs only.
         * ``traffic_reversing_uncovered_steps``: policy steps in which some traffic car had backed up further
-          than the guardian covers (``GuardianConfig.reverse_reach``; ``guardian.monitor``). Guarded runs only.
+          than the guardian covers (``GuardianConfig.reverse_reach``; ``guardian.adapters.highway_env.monitor``). Guarded runs only.
         * ``reversing_steps``: steps ending with a negative speed (per guarded car). ``unsupervised_steps``:
           simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
           guardian found the ego reset or replaced behind its back.
@@ -526,7 +289,7 @@ class _SelfSafetyCheck:
 
     def __init__(self, base, road, car=None, multi: bool = False):
         from guardian.config import GuardianConfig
-        from guardian.traffic import TrafficSupervisor
+        from guardian.decide.traffic import TrafficSupervisor
         from itha.car_following import CarFollowingParams
 
         c = GuardianConfig()
@@ -540,9 +303,9 @@ class _SelfSafetyCheck:
                                          wreck_margin=c.wreck_margin)
 
     def inside(self, base) -> bool:
-        from guardian.judge import body_lanes
-        from guardian.roads import RoadMap
-        from guardian.sensing import road_scene
+        from guardian.evaluation.judge import body_lanes
+        from guardian.model.roads import RoadMap
+        from guardian.adapters.highway_env.scene import road_scene
 
         ego = self.car
         if isinstance(self.road, RoadMap):
@@ -575,7 +338,7 @@ def _count_step(totals: dict, g: dict | None) -> None:
 
 def _guardian_of(env):
     """The ``Guardian`` inside a stack of wrappers."""
-    from guardian.wrapper import Guardian
+    from guardian.wrappers.guardian import Guardian
 
     while not isinstance(env, Guardian):
         env = env.env

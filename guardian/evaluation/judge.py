@@ -23,7 +23,7 @@ The partner is the vehicle whose crash began in the same step and which is neare
 there is none, the nearest vehicle that had crashed before and whose body overlapped the ego's when the
 ego's crash began, or was about to by highway-env's own test (a wreck that backs or slides into the ego,
 or that the ego drives into).
-Lanes are the road's straight lanes (``guardian.sensing.Road``); a body overlaps a lane when its
+Lanes are the road's straight lanes (``guardian.model.roads.Road``); a body overlaps a lane when its
 lateral extent (heading included) enters the lane's strip.
 
 **Other roads** (``FaultJudge.for_env``): lanes are highway-env's own lane objects, grouped into
@@ -33,7 +33,7 @@ across its segments). A body overlaps a lane when, in the lane's own coordinates
 ``local_coordinates`` and ``heading_at``), its lateral extent meets the lane's strip and its longitudinal
 extent meets the lane's length; it overlaps the line of every lane it overlaps. "Sideways" and "along"
 are measured against the heading of the lane each body is on. Nothing of the guardian's road reading
-(``guardian.roads``) is used.
+(``guardian.model.roads``) is used.
 
 **Many guarded cars** (``start(base, guarded=[...])``, ``observe_all``): every guarded car's crash is
 judged with that car in the ego's place; a crash between two guarded cars is judged once (the car first

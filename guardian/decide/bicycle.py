@@ -24,30 +24,14 @@ steering]``, and returns the input to apply and a ``Decision``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from guardian.decision import Decision, Entry
-from guardian.ego import BicycleEgo
-from guardian.scene import Scene
-from guardian.traffic import TrafficSupervisor
+from guardian.model.decision import Decision, Entry
+from guardian.decide.kinematics import BicycleEgo
+from guardian.model.scene import EgoState, Scene
+from guardian.decide.traffic import TrafficSupervisor
 from itha.car_following import CarFollowingParams
 from rcis.intervals import intersect_intervals, nearest_in_intervals
-
-
-@dataclass(frozen=True)
-class EgoState:
-    """The bicycle ego at one instant, in highway-env's coordinates (lane ids 0 = leftmost; on a
-    ``guardian.roads.RoadMap`` lanes are slots and ``front`` is along the lane's chain)."""
-
-    front: float            # front bumper along the road [m]
-    y: float                # lateral position of the centre [m]
-    heading: float          # [rad]
-    speed: float            # [m/s]
-    lane: int               # highway-env lane id of the lane it is closest to
-    target_lane: int        # the lane its controller steers to (meta agents); ``lane`` otherwise
-    x: float = 0.0          # world position of the centre [m] (read on a RoadMap only)
 
 
 class BicycleGuardian:
@@ -57,7 +41,7 @@ class BicycleGuardian:
     ----------
     kin : BicycleEgo or RoadMapEgo
         The ego's kinematics (step, lanes, steering limits) on its road.
-    config : guardian.wrapper.GuardianConfig
+    config : guardian.wrappers.guardian.GuardianConfig
     meta : bool
         The agent gives meta actions (the vehicle's controller steers).
     """

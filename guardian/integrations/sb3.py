@@ -19,7 +19,7 @@ it inside a stable-baselines3 off-policy algorithm (DQN, SAC, TD3, ...)::
 
     from stable_baselines3 import DQN
     from guardian import Guardian, GuardianConfig
-    from guardian.rl import ShieldedReplayBuffer
+    from guardian.integrations.sb3 import ShieldedReplayBuffer
 
     env = Guardian(gym.make("highway-fast-v0"), config=GuardianConfig(override_penalty=1.0))
     model = DQN("MlpPolicy", env, replay_buffer_class=ShieldedReplayBuffer)
@@ -103,7 +103,7 @@ def _import_sb3():
     try:
         from stable_baselines3.common.buffers import ReplayBuffer
     except ImportError as exc:
-        raise ImportError(f"guardian.rl.ShieldedReplayBuffer needs stable-baselines3: {RL_EXTRA} "
+        raise ImportError(f"guardian.integrations.sb3.ShieldedReplayBuffer needs stable-baselines3: {RL_EXTRA} "
                           f"({exc})") from None
     return ReplayBuffer
 

@@ -1,7 +1,7 @@
 """Roads beyond one straight segment, as plain geometry: on-ramps, exits, lanes that begin and end.
 
-``guardian.sensing.read_road`` reads highway-env's road network into a ``RoadMap`` (or, for one straight
-multi-lane road, the simpler ``guardian.sensing.Road``); the decision objects and ``guardian.ego.RoadMapEgo``
+``guardian.adapters.highway_env.road.read_road`` reads highway-env's road network into a ``RoadMap`` (or, for one straight
+multi-lane road, the simpler ``guardian.model.roads.Road``); the decision objects and ``guardian.decide.kinematics.RoadMapEgo``
 read only this module's plain values, never the simulator.
 
 The road the guardian can reason about is a **corridor** with **branches**:
@@ -19,7 +19,7 @@ The road the guardian can reason about is a **corridor** with **branches**:
   lane for the ITHA agents (7.3).
 
 ITHA lanes are slots: ITHA lane ``n_lanes - k`` (1 = rightmost) for slot ``k``, as on the straight road.
-The longitudinal coordinate of a car (its ``front`` in ``guardian.scene``) is ``x`` on the corridor and,
+The longitudinal coordinate of a car (its ``front`` in ``guardian.model.scene``) is ``x`` on the corridor and,
 on a branch, the branch's coordinate along its chain, continuous with ``x`` where it joins the corridor
 (on highway-env's on-ramps, whose lanes run along x, it is ``x`` itself; on an exit's curve it is the arc
 length from the exit, so it differs from ``x`` by less than 1 % over the curve's first 40 m at a 150 m
@@ -35,6 +35,19 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+
+@dataclass(frozen=True)
+class Road:
+    """A straight multi-lane road along x: ``n_lanes`` lanes of ``lane_width``, lane 0 at ``y = 0``."""
+
+    n_lanes: int
+    lane_width: float
+
+    def itha_lane(self, lane_id: int) -> int:
+        """ITHA lane number (1 = rightmost) of highway-env lane id ``lane_id`` (0 = leftmost)."""
+        return self.n_lanes - lane_id
+
 
 
 @dataclass(frozen=True)
@@ -198,7 +211,7 @@ class RoadMap:
     def end_cars(self) -> tuple:
         """Each dead end as a standing car of length 0 at the end, in its slot's ITHA lane: a car there must
         stop before the end or leave the lane (self-safety (7.4) towards it)."""
-        from guardian.scene import Car
+        from guardian.model.scene import Car
 
         return tuple(Car(float(s), 0.0, frozenset({self.itha_lane(k)}), 0.0, f"the end of lane {self.itha_lane(k)}",
                          fixed=True)

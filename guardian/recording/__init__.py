@@ -1,0 +1,1 @@
+"""Recordings for the rerun viewer: supervised rollouts, the ITHA highway experiment and HighD replays."""
