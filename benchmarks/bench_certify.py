@@ -6,8 +6,8 @@ Run: python benchmarks/bench_certify.py [--samples 100000] [--before REV] [--jso
 older commit (checked out into a temporary git worktree, with its own warm cache) in the same run.
 This checkout's runs must give identical JSON (the same samples, counterexamples and split counts),
 else this exits 1; an older commit may draw its samples differently (each set is drawn as two seeded
-halves since issue 12, `CERTIFY_PARTS`), so against it only the counterexample counts are compared.
-Target (issue 12): at most 30 s on this 2-core machine. The library is built once first, so no figure
+halves, `CERTIFY_PARTS`), so against it only the counterexample counts are compared.
+Target: at most 30 s on this 2-core machine. The library is built once first, so no figure
 includes a cold build.
 """
 from __future__ import annotations

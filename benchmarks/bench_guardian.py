@@ -1,7 +1,7 @@
 """Speed of one guardian step (the service: bench_service.py).
 
 Run: python benchmarks/bench_guardian.py [--json]
-Targets (issue 3): one guardian step (estimator update, admissible set, override)
+Targets: one guardian step (estimator update, admissible set, override)
 median < 1 ms, 99th percentile < 5 ms.
 """
 from __future__ import annotations

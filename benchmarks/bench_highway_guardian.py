@@ -1,9 +1,9 @@
-"""The guardian's cost per simulation step beside the simulator's own step (issue 9: under 10 %).
+"""The guardian's cost per simulation step beside the simulator's own step (target: under 10 %).
 
 Run: python benchmarks/bench_highway_guardian.py [--json] [--episodes N] [--steps N] [--before REV]
 
 ``--before REV`` runs the same cases with the code of an older commit (a temporary git worktree put
-first on ``PYTHONPATH``) in the same run, and prints its figures beside these. Target (issue 12): the
+first on ``PYTHONPATH``) in the same run, and prints its figures beside these. Target: the
 guardian at most 5 % of the simulator's step on ``highway-v0`` defaults and on lanes_count=5,
 vehicles_count=80.
 
@@ -31,12 +31,12 @@ import numpy as np
 
 import envs  # noqa: F401
 from envs.agents import make_agent
-from guardian.evaluation.rollouts import OVERTAKE_ENV, highway_env_config
+from guardian.evaluation.rollouts import OVERTAKE_ENV, Rollout, highway_env_config
 from guardian.wrappers.guardian import Guardian
 from intention.library import build_library
 from intention.params import OvertakeParams
 
-DENSE = {"lanes_count": 5, "vehicles_count": 80}  # issue 12's dense configuration
+DENSE = {"lanes_count": 5, "vehicles_count": 80}  # the dense configuration
 CASES = [(OVERTAKE_ENV, "continuous", None), (OVERTAKE_ENV, "meta", None), ("highway-v0", "meta", None),
          ("highway-v0", "continuous", None), ("highway-v0", "meta", DENSE), ("highway-v0", "continuous", DENSE),
          ("highway-fast-v0", "meta", None), ("highway-fast-v0", "continuous", None)]  # what RL users train on
@@ -114,7 +114,7 @@ def bench(episodes: int, steps: int = 200) -> dict:
     library = build_library(params=OvertakeParams.among_traffic(), quiet=True, workers=2)  # HighwayOvertake's
     out = {}
     for env_id, action, extra in CASES:
-        cfg = highway_env_config(env_id, action, "cautious", "random", None, library, extra)
+        cfg = highway_env_config(Rollout(env_id, "", action=action, library=library, env_config=extra))
         free, _, free_steps = _timed_sim(gym.make(env_id, config=cfg), episodes, False)
         _, hook, guarded_steps = _timed_sim(Guardian(gym.make(env_id, config=cfg), library), episodes, True)
         sim_ms = 1e3 * np.median(free)

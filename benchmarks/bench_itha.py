@@ -1,7 +1,7 @@
 """Speed of the ITHA experiment of Section 7.4.1.
 
 Run: python benchmarks/bench_itha.py [--json]
-Target (issue 4): 25 runs x 500 steps, both over-approximations, under 2 minutes.
+Target: 25 runs x 500 steps, both over-approximations, under 2 minutes.
 The guardian's cost on highway-env is in ``bench_highway_guardian.py``.
 """
 from __future__ import annotations

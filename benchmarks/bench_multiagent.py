@@ -58,13 +58,10 @@ def _config(density: str, agent: str = "merge") -> dict:
 def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: int, agent: str, action: str) -> dict:
     from guardian.config import GuardianConfig
     from guardian.cli.progress import ProgressBar
-    from guardian.evaluation.rollouts import highway_rollouts
+    from guardian.evaluation.rollouts import Rollout, highway_rollouts
 
     guarded = overapprox is not None
-    r = highway_rollouts(ENV, agent, episodes, seed, action=action, controlled=n, guardian=guarded,
-                         env_config=_config(density, agent),
-                         guardian_config=GuardianConfig(overapprox=overapprox) if guarded else None,
-                         progress=ProgressBar(f"N={n} {density} {overapprox or 'unguarded'}"))
+    r = highway_rollouts(Rollout(ENV, agent, action=action, controlled=n, guarded=guarded, env_config=_config(density, agent), config=GuardianConfig(overapprox=overapprox) if guarded else None), episodes, seed, progress=ProgressBar(f"N={n} {density} {overapprox or 'unguarded'}"))
     return {"n": n, "density": density, "overapprox": overapprox or "unguarded", "episodes": episodes,
             "distance_per_car": r["distance_mean"], "lane_changes": r["lane_changes"], "merges": r["merges"],
             "on_ramp": r["on_ending_lane"], "override_steps": r["override_steps"], "collisions": r["collisions"],
@@ -81,20 +78,21 @@ def cost(n: int, density: str, overapprox: str, episodes: int, seed: int, agent:
     import envs  # noqa: F401
     from envs.agents import make_agent
     from guardian.config import GuardianConfig
-    from guardian.evaluation.rollouts import highway_env_config
+    from guardian.evaluation.rollouts import Rollout, highway_env_config
     from guardian.wrappers.guardian import Guardian
 
-    config = highway_env_config(ENV, action, extra=_config(density, agent), controlled=n)
+    config = highway_env_config(Rollout(ENV, agent, action=action, env_config=_config(density, agent), controlled=n))
     env = Guardian(gym.make(ENV, config=config), None, GuardianConfig(overapprox=overapprox))
     decide, sim = [], []
-    original = env._supervise_highway
+    supervision = env.supervision
+    original = supervision._decide_one
 
     def timed(*a):
         t = time.perf_counter()
         out = original(*a)
         decide.append(time.perf_counter() - t)
         return out
-    env._supervise_highway = timed
+    supervision._decide_one = timed
     for ep in range(episodes):
         obs, _ = env.reset(seed=seed + ep)
         road = env.unwrapped.road

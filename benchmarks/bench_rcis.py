@@ -1,8 +1,8 @@
 """Speed of the RCIS library: build (cold and cached), membership, admissible set + override.
 
 Run: python benchmarks/bench_rcis.py [--before REV] [--json]
-Targets (issue 2, this 2-core machine): library cold < 60 s, cached < 1 s, membership
-< 20 µs per state, admissible set + override < 1 ms; issue 12: library cold <= 15 s.
+Targets (this 2-core machine): library cold < 60 s, cached < 1 s, membership
+< 20 µs per state, admissible set + override < 1 ms, library cold <= 15 s.
 
 The cold build runs in a fresh process (as ``guardian rcis build --rebuild`` does); ``--before REV``
 also runs an older commit's cold build (a temporary git worktree) in the same run and says whether
@@ -98,7 +98,7 @@ def main() -> None:
     if args.json:
         print(json.dumps(out, indent=2))
         return
-    print(f"library cold build        {out['library_cold_s']:.1f} s  (target < 60 s; issue 12: <= 15 s)")
+    print(f"library cold build        {out['library_cold_s']:.1f} s  (target <= 15 s)")
     for n, s in out["build_s"].items():
         print(f"  {n:17s} {s:.1f} s")
     if "before" in out:

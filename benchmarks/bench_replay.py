@@ -12,7 +12,7 @@ largest process (the command or one of its workers), and the override rates:
   view is stored);
 * repeated run: 2 workers, then 1 worker, the cache warm (no CSV is parsed).
 
-Targets (issue 12): first run <= 20 s with 2 workers, repeated <= 5 s, >= 3 M points/s per core once
+Targets: first run <= 20 s with 2 workers, repeated <= 5 s, >= 3 M points/s per core once
 cached, peak memory <= 1.5 GB; the rates identical in every run.
 """
 from __future__ import annotations

@@ -112,7 +112,7 @@ def train(variant: str, seed: int, steps: int, penalty: float, out: Path) -> dic
 
 
 def evaluate(path: str, guardian: bool, episodes: int, seed: int) -> dict:
-    from guardian import Guardian
+    from guardian import Guardian, GuardianConfig
     from guardian.evaluation.tally import HighwayTally
     from guardian.evaluation.episodes import run_episodes
 
@@ -120,7 +120,7 @@ def evaluate(path: str, guardian: bool, episodes: int, seed: int) -> dict:
     if guardian:
         env = Guardian(env)
     env = EpisodeReturn(env)
-    tally = HighwayTally(env, overtake=False, guardian=guardian)
+    tally = HighwayTally(env, guardian, GuardianConfig())
     run_episodes(env, f"policy:{path}", episodes, seed, [tally])
     r = tally.result(episodes)
     return {"return": round(float(np.mean(env.returns)), 2), "crashes": r["collisions"],

@@ -3,23 +3,37 @@
 Each subclasses a builtin, so ``except ValueError`` still catches a bad file or configuration:
 
 * ``ConfigError`` (``ValueError``): an environment configuration that cannot be simulated or
-  supervised as asked;
+  supervised as asked; ``ConfigClash``, one of them: a key given twice (by a rollout's setting and its
+  env config);
 * ``HighDFormatError`` (``ValueError``): a HighD-format file is malformed; the message says where;
 * ``ServiceError`` (``Exception``): a refused service request, with the HTTP status a client sees;
 * ``FramingError`` (``Exception``): an HTTP request the service cannot read (answered, then closed);
-* ``SchedulerError`` (``ConnectionError``): no Dask scheduler answers at a ``--scheduler`` address
-  (the message names the address and the reason);
-* ``LPError``, ``StaleCacheError`` (``RuntimeError``): the engine's (``rcis.errors``), re-exported;
+* ``LPError``, ``StaleCacheError`` (``RuntimeError``), ``SchedulerError`` (``ConnectionError``: no Dask
+  scheduler answers at a ``--scheduler`` address; the message names the address and the reason): the
+  engine's (``rcis.errors``), re-exported;
 * ``Terminated`` (``KeyboardInterrupt``): SIGTERM, raised by the command line's handler so that a
   job stops as it does on Ctrl-C (finished work kept, nothing half-written).
 """
 from __future__ import annotations
 
-from rcis.errors import LPError, StaleCacheError
+from rcis.errors import LPError, SchedulerError, StaleCacheError
 
 
 class ConfigError(ValueError):
     """An environment configuration that cannot be simulated or supervised as asked."""
+
+
+class ConfigClash(ConfigError):
+    """A config key given in an env config that a rollout's own setting (``setting``) also sets: one of the
+    two would be dropped without a word."""
+
+    def __init__(self, env_id: str, key: str, setting: str):
+        super().__init__(f"{env_id}: config key {key!r} is set by the rollout's {setting}; give it there, not in "
+                         "the env config")
+        self.env_id, self.key, self.setting = env_id, key, setting
+
+    def __reduce__(self):
+        return type(self), (self.env_id, self.key, self.setting)
 
 
 class HighDFormatError(ValueError):
@@ -39,18 +53,6 @@ class ServiceError(Exception):
         return {"error": self.message, **self.extra}
 
 
-class SchedulerError(ConnectionError):
-    """No Dask scheduler answers at ``address`` (malformed, nothing listening, timed out): ``reason`` says which."""
-
-    def __init__(self, address: str, reason: str):
-        super().__init__(f"cannot reach the Dask scheduler at {address} ({reason})")
-        self.address = address
-        self.reason = reason
-
-    def __reduce__(self):
-        return type(self), (self.address, self.reason)
-
-
 class Terminated(KeyboardInterrupt):
     """The process received SIGTERM; handled like Ctrl-C."""
 
@@ -64,5 +66,5 @@ class FramingError(Exception):
         self.message = message
 
 
-__all__ = ["ConfigError", "FramingError", "HighDFormatError", "LPError", "SchedulerError", "ServiceError",
+__all__ = ["ConfigClash", "ConfigError", "FramingError", "HighDFormatError", "LPError", "SchedulerError", "ServiceError",
            "StaleCacheError", "Terminated"]

@@ -16,7 +16,7 @@ from intention.params import OvertakeParams
 from rcis.admissible import AdmissibleInputs
 from rcis.cache import RegionCache, code_fingerprint, payload_key
 from rcis.invariant import COVER_BUDGET, inside_out, stderr_progress
-from rcis.parallel import as_completed, worker_pool
+from rcis.parallel import Jobs
 from rcis.region import Region
 
 SET_NAMES = ("bounded_velocity", "aggressive", "cautious")
@@ -170,9 +170,9 @@ def build_library(params: OvertakeParams = OvertakeParams(), settings: LibrarySe
     # Each set is stored as soon as it is computed: an interrupt keeps every finished set.
     if workers > 1 and len(todo) > 1:
         payloads = dict(todo)
-        with worker_pool(min(workers, len(todo))) as pool:
-            running = {n: pool.apply_async(_compute, (n, params, settings, bnd.region, quiet)) for n, _ in todo}
-            for name, (region, info) in as_completed(running):
+        with Jobs(min(workers, len(todo))) as pool:
+            running = {n: pool.submit(_compute, n, params, settings, bnd.region, quiet) for n, _ in todo}
+            for name, (region, info) in pool.as_completed(running):
                 cache.store(name, payloads[name], region, info)
                 remember(name, region, info, payloads[name], False)
     else:

@@ -24,7 +24,7 @@ import numpy as np
 from rcis import _kernels
 from rcis.admissible import AdmissibleInputs
 from rcis.lp import InequalityLP
-from rcis.parallel import as_completed, worker_pool
+from rcis.parallel import Jobs
 from rcis.polyhedron import Polyhedron
 from rcis.pwa import PWASystem
 from rcis.region import Region
@@ -217,10 +217,10 @@ def falsify_all(jobs: dict, workers: int = 1, progress=None, parts: int = 1) -> 
     import multiprocessing
 
     queue = multiprocessing.get_context().Queue()
-    with worker_pool(min(workers, len(pieces)), _set_progress_queue, (queue,)) as pool:
-        running = {key: pool.apply_async(_falsify_reporting, (job, key)) for key, job in pieces.items()}
+    with Jobs(min(workers, len(pieces)), initializer=_set_progress_queue, initargs=(queue,)) as pool:
+        running = {key: pool.submit(_falsify_reporting, job, key) for key, job in pieces.items()}
         results = {}
-        for key, rep in as_completed(running, poll=0.2, idle=lambda: _drain(queue, report)):
+        for key, rep in pool.as_completed(running, poll=0.2, idle=lambda: _drain(queue, report)):
             results[key] = rep
         _drain(queue, report)
         return _merge(jobs, {key: results[key] for key in pieces})  # the serial order

@@ -13,4 +13,16 @@ class StaleCacheError(RuntimeError):
     """A cache file exists but was built from other parameters or code."""
 
 
-__all__ = ["LPError", "StaleCacheError"]
+class SchedulerError(ConnectionError):
+    """No Dask scheduler answers at ``address`` (malformed, nothing listening, timed out): ``reason`` says which."""
+
+    def __init__(self, address: str, reason: str):
+        super().__init__(f"cannot reach the Dask scheduler at {address} ({reason})")
+        self.address = address
+        self.reason = reason
+
+    def __reduce__(self):
+        return type(self), (self.address, self.reason)
+
+
+__all__ = ["LPError", "SchedulerError", "StaleCacheError"]

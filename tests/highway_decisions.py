@@ -1,12 +1,10 @@
 """The guardian's decisions on seeded highway-v0-family episodes, recorded for a bit-for-bit regression test.
 
-``tests/data/highway_decisions.json`` was written by ``python tests/highway_decisions.py --write`` with the
-code of commit 38692e1 (before roads beyond one straight segment and many guarded cars were added) and
-written again when the guardian learned to keep room behind cars at risk of a crash (``guardian.decide.traffic``,
-"Wrecks"): that changed one episode, highway-fast-v0 seek meta, whose leader tailgates from the start; the
-other seven were the same bit for bit. The test
+``tests/data/highway_decisions.json`` is written by ``python tests/highway_decisions.py --write``. The test
 (``tests/test_highway_regression.py``) replays the same episodes and compares every applied input (each
-simulation step, exact floats) and every policy step's decision fields with the file.
+simulation step, exact floats) and every policy step's decision fields with the file: a change that alters
+any decision on the straight road fails it, and is made on purpose, with the file written again and the
+reason in the commit.
 
 The applied inputs are read from the vehicle itself (``Vehicle.step`` is wrapped), not from the guardian's
 internals, so the recording does not depend on how the guardian is organised.

@@ -1,4 +1,4 @@
-"""The cheap certificates that spare LPs (issue 12) give the LP's answers.
+"""The cheap certificates that spare LPs give the LP's answers.
 
 Each test compares a fast path with a referee that solves the LPs: support values, the Chebyshev
 radius, the envelope test of a convex union, the exact coverage search. A certificate that decided

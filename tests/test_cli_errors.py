@@ -362,7 +362,9 @@ def test_falsify_human_output_shows_every_figure(monkeypatch, capsys):
     result = {"episodes": 1001, "seconds": 12.5, "workers": 1, "scheduler": None, "cells": 3, "episodes_per_cell": 1,
               "totals": row("all", 1001), "by_env": [row("exit-v0 meta", 2001)], "by_agent": [row("hold", 3001)],
               "by_setting": [row("own config", 4001), row("density 2.5", 5001)],
-              "failures": [{"kind": "unchecked_entries", "count": 6007, "cell": "own config", "command": "guardian x"}]}
+              "failures": [{"kind": "unchecked_entries", "count": 6007, "cell": "own config",
+                            "replay": {"env": "exit-v0", "agent": "hold", "action": "meta", "env_config": {},
+                                       "episodes": 1, "seed": 8008}}]}
     monkeypatch.setattr(guardian.evaluation.campaign, "run_campaign", lambda *a, **k: result)
     argv = ["falsify", "--only", "roads", "--agent", "merge"]
     assert main(argv) == 1  # the counts above break the promise

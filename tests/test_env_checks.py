@@ -104,13 +104,12 @@ def test_the_wrapper_refuses_several_cars_where_the_env_spawns_one():
 
 def test_the_rollout_keeps_the_cars_from_behind_it_was_given():
     """--traffic 12 --env-config traffic_from_behind=6 once ran with 2 from behind (the default's cap)."""
-    from guardian.evaluation.rollouts import highway_env_config
+    from guardian.evaluation.rollouts import Rollout, highway_env_config
 
-    config = highway_env_config("guardian/HighwayOvertake-v0", None, "cautious", "random", 12, None,
-                                {"traffic_from_behind": 6, "lanes_count": 3})
+    env = "guardian/HighwayOvertake-v0"
+    config = highway_env_config(Rollout(env, "", traffic=12, env_config={"traffic_from_behind": 6, "lanes_count": 3}))
     assert config["traffic_from_behind"] == 6 and config["traffic_count"] == 12
-    assert highway_env_config("guardian/HighwayOvertake-v0", None, "cautious", "random", 1, None, {})[
-        "traffic_from_behind"] == 1
+    assert highway_env_config(Rollout(env, "", traffic=1))["traffic_from_behind"] == 1
 
 
 @pytest.mark.parametrize("env_id, extra, key", [
@@ -118,10 +117,10 @@ def test_the_rollout_keeps_the_cars_from_behind_it_was_given():
     ("guardian/Overtake-v0", {"disturbance": "adversarial"}, "disturbance"),
     ("highway-v0", {"vehicles_count": 5}, "vehicles_count")])
 def test_a_key_the_rollout_sets_is_not_also_taken_from_the_config(env_id, extra, key):
-    from guardian.evaluation.rollouts import highway_env_config
+    from guardian.evaluation.rollouts import Rollout, highway_env_config
 
     with pytest.raises(ValueError, match=f"'{key}' is set by"):
-        highway_env_config(env_id, None, "cautious", "random", 3 if key == "vehicles_count" else None, None, extra)
+        highway_env_config(Rollout(env_id, "", traffic=3 if key == "vehicles_count" else None, env_config=extra))
 
 
 @pytest.mark.parametrize("env_id, action, config, name", [

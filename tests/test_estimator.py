@@ -278,16 +278,17 @@ class RecordingWindowLPEstimator(WindowLPEstimator):
 
 def _rollouts(library):
     from envs.agents import BASELINES
-    from guardian.evaluation.rollouts import TWO_CARS_ENV, highway_rollouts
+    from guardian.config import GuardianConfig
+    from guardian.evaluation.rollouts import TWO_CARS_ENV, Rollout, highway_rollouts
 
     out = []
     for intention in ("aggressive", "cautious"):
         for disturbance in ("random", "adversarial"):
             for driver in BASELINES:
                 for use_intention in (True, False):
-                    out.append(highway_rollouts(TWO_CARS_ENV, driver, 2, 7, library=library, intention=intention,
-                                                disturbance=disturbance, use_intention=use_intention,
-                                                env_config={"duration": 10}))
+                    r = Rollout(TWO_CARS_ENV, driver, library=library, intention=intention, disturbance=disturbance,
+                                env_config={"duration": 10}, config=GuardianConfig(use_intention=use_intention))
+                    out.append(highway_rollouts(r, 2, 7))
     return out
 
 
@@ -296,10 +297,12 @@ def test_rollouts_and_their_replay_are_unchanged(library, monkeypatch):
     with and without intentions: the same results with the interval estimator as with the window LP;
     and every recorded transition, replayed in order, gives the same valid set after every update."""
     import guardian.decide.lead
+    import guardian.evaluation.tally
 
     new = _rollouts(library)
     RecordingWindowLPEstimator.instances = []
     monkeypatch.setattr(guardian.decide.lead, "IntentionEstimator", RecordingWindowLPEstimator)
+    monkeypatch.setattr(guardian.evaluation.tally, "IntentionEstimator", RecordingWindowLPEstimator)
     monkeypatch.setattr(est_mod, "IntentionEstimator", RecordingWindowLPEstimator)
     reference = _rollouts(library)
     monkeypatch.undo()

@@ -4,6 +4,7 @@ import shlex
 
 import pytest
 
+from guardian.cli.rollout import replay_command
 from guardian.evaluation.campaign import COUNTED, OVERTAKE_ENV, Campaign, Cell, matrix, run_campaign, run_episode
 
 
@@ -31,7 +32,7 @@ def test_a_cells_command_replays_its_episode(capsys):
                 and c.config.get("vehicles_density") == 2.5 and c.action == "continuous")
     seed = 7
     direct = run_episode(cell, seed)
-    argv = shlex.split(cell.command(seed))[2:]  # "guardian rollout ..." -> the sub-command's arguments
+    argv = shlex.split(replay_command(cell.replay(seed)))[2:]  # "guardian rollout ..." -> the sub-command's arguments
     assert main(["rollout", *argv]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert {k: replayed[k] for k in COUNTED} == {k: direct[k] for k in COUNTED}
@@ -54,7 +55,8 @@ def test_an_episode_that_raises_is_counted_with_its_command():
     camp = Campaign()
     camp.add(bad, 0, r)
     assert camp.table("all")[0]["exceptions"] == 1
-    assert camp.failures[0]["kind"] == "exception" and "--env-config lanes_count=0" in camp.failures[0]["command"]
+    assert camp.failures[0]["kind"] == "exception" and camp.failures[0]["replay"]["env_config"] == {"lanes_count": 0}
+    assert "--env-config lanes_count=0" in replay_command(camp.failures[0]["replay"])
 
 
 @pytest.mark.parametrize("argv, message", [(["--episodes", "0"], "--episodes"), (["--workers", "0"], "--workers")])
@@ -84,7 +86,7 @@ def test_a_multi_agent_cells_command_replays_its_episode(capsys):
                 and c.agent == "merge" and c.action == "meta" and c.config["traffic"] == "hard")
     direct = run_episode(cell, 3)
     assert "exception" not in direct, direct.get("exception")
-    argv = shlex.split(cell.command(3))[2:]
+    argv = shlex.split(replay_command(cell.replay(3)))[2:]
     assert main(["rollout", *argv]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert {k: replayed[k] for k in COUNTED} == {k: direct[k] for k in COUNTED}

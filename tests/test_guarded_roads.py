@@ -12,7 +12,7 @@ import envs  # noqa: F401 - registers guardian/Merge-v0
 from envs.agents import make_agent
 from guardian.config import GuardianConfig
 from guardian.errors import ConfigError
-from guardian.evaluation.rollouts import highway_rollouts
+from guardian.evaluation.rollouts import Rollout, highway_rollouts
 from guardian.wrappers.guardian import Guardian
 
 warnings.filterwarnings("ignore", message=".*out of date.*")
@@ -25,9 +25,9 @@ warnings.filterwarnings("ignore", message=".*out of date.*")
     ("guardian/Merge-v0", "continuous", 2, 1),  # merge-v0's road and traffic; continuous (merge-v0 fails there)
 ])
 def test_a_reckless_agent_crashes_unguarded_and_is_kept_safe_guarded(env_id, action, seed, episodes):
-    free = highway_rollouts(env_id, "reckless", episodes, seed, action=action, guardian=False)
+    free = highway_rollouts(Rollout(env_id, "reckless", action=action, guarded=False), episodes, seed)
     assert free["ego_at_fault_collisions"] > 0
-    guarded = highway_rollouts(env_id, "reckless", episodes, seed, action=action)
+    guarded = highway_rollouts(Rollout(env_id, "reckless", action=action), episodes, seed)
     assert guarded["collisions"] == 0 and guarded["ego_at_fault_collisions"] == 0
     assert guarded["unsupervised_steps"] == 0 and guarded["unchecked_entries"] == 0
     assert guarded["override_steps"] > 0 and guarded["model_violation_steps"] == 0
@@ -61,9 +61,9 @@ def test_a_continuous_agent_on_exit_v0_stays_on_the_road():
 @pytest.mark.parametrize("env_id", ["merge-v0", "merge-v1"])
 def test_merge_v0_with_continuous_actions_is_refused_with_the_reason(env_id):
     with pytest.raises(ValueError, match=f"{env_id} fails with ContinuousAction.*guardian/Merge-v0"):
-        highway_rollouts(env_id, "random", 1, 0, action="continuous")
+        highway_rollouts(Rollout(env_id, "random", action="continuous"), 1, 0)
     with pytest.raises(ValueError, match=f"{env_id} has one controlled car"):
-        highway_rollouts(env_id, "random", 1, 0, action="meta", controlled=2)
+        highway_rollouts(Rollout(env_id, "random", action="meta", controlled=2), 1, 0)
 
 
 # ---- several guarded cars ------------------------------------------------------------------------------
@@ -103,7 +103,7 @@ def test_each_guarded_car_sees_the_others_as_traffic():
     env.reset(seed=1)
     base = env.unwrapped
     car = env.cars[0]
-    scene = road_scene(base, env.road, ego=car.vehicle, guarded=env._guarded)
+    scene = road_scene(base, env.road, ego=car.vehicle, guarded=env.supervision.guarded)
     names = {c.name for c in scene.others}
     idx = {base.road.vehicles.index(v) for v in base.controlled_vehicles}
     me = base.road.vehicles.index(car.vehicle)
@@ -114,9 +114,7 @@ def test_each_guarded_car_sees_the_others_as_traffic():
 
 @pytest.mark.parametrize("overapprox", ["trivial", "ordered"])
 def test_random_guarded_cars_do_not_crash_into_each_other_or_at_their_fault(overapprox):
-    r = highway_rollouts("guardian/Merge-v0", "random", 3, 0, action="meta", controlled=4,
-                         env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5},
-                         guardian_config=GuardianConfig(overapprox=overapprox))
+    r = highway_rollouts(Rollout("guardian/Merge-v0", "random", action="meta", controlled=4, env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5}, config=GuardianConfig(overapprox=overapprox)), 3, 0)
     assert r["guarded_cars"] == 4 and len(r["agents"]) == 4
     assert r["guarded_pair_collisions"] == 0 and r["ego_at_fault_collisions"] == 0 and r["collisions"] == 0
     assert r["unsupervised_steps"] == 0 and r["unchecked_entries"] == 0
@@ -124,8 +122,7 @@ def test_random_guarded_cars_do_not_crash_into_each_other_or_at_their_fault(over
 
 
 def test_unguarded_random_cars_do_crash_on_the_same_seeds():
-    r = highway_rollouts("guardian/Merge-v0", "random", 3, 0, action="meta", controlled=4, guardian=False,
-                         env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5})
+    r = highway_rollouts(Rollout("guardian/Merge-v0", "random", action="meta", controlled=4, guarded=False, env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5}), 3, 0)
     assert r["ego_at_fault_collisions"] > 0
 
 
@@ -164,7 +161,7 @@ def test_idm_cars_announce_nothing():
     env = _multi(2, overapprox="ordered")
     env.reset(seed=3)
     base = env.unwrapped
-    scene = road_scene(base, env.road, ego=env.cars[0].vehicle, guarded=env._guarded)
+    scene = road_scene(base, env.road, ego=env.cars[0].vehicle, guarded=env.supervision.guarded)
     other = base.road.vehicles.index(env.cars[1].vehicle)
     assert [c.name for c in scene.others if c.announces] == [f"car {other}"]
     idm = {f"car {k}" for k, v in enumerate(base.road.vehicles) if v not in base.controlled_vehicles}
@@ -208,7 +205,7 @@ def test_merges_count_cars_that_began_on_a_lane_that_ends_and_finished_on_one_th
     a, b = base.controlled_vehicles
     _place(base, a, ("b", "c", 2), 20.0)   # on the ramp's parallel part (it ends at x = 310)
     _place(base, b, ("b", "c", 2), 50.0)
-    tally = HighwayTally(env, overtake=False, guardian=False)
+    tally = HighwayTally(env, False, GuardianConfig())
     tally.start_episode(env, 0, None)
     _place(base, a, ("b", "c", 1), 60.0)   # a reached the main road; b stayed on the ramp
     tally.end_episode(env, 0)
@@ -224,7 +221,7 @@ def test_a_crash_between_two_guarded_cars_counts_once_and_against_the_one_blamed
     from guardian.evaluation.tally import HighwayTally
 
     env = _tally_env(2)
-    tally = HighwayTally(env, overtake=False, guardian=False)
+    tally = HighwayTally(env, False, GuardianConfig())
     tally.start_episode(env, 0, None)
     tally._count_crash(Crash(3, "other", "entry", "car 1", car=0, partner_car=1), {})
     r = tally.result(1)
@@ -248,11 +245,9 @@ def test_the_at_fault_crashes_found_on_merge_roads_with_traffic_that_did_not_see
     collision; with the connected search (merge-v1's, guardian/Merge-v0's default) nobody is blind."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        r = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
-                             env_config={"neighbour_vehicles_connected_lanes": False})
+        r = highway_rollouts(Rollout(env_id, "random", action=action, env_config={"neighbour_vehicles_connected_lanes": False}), 1, seed, first_episode=episode)
         if env_id == "merge-v0":  # guardian/Merge-v0's default search is the connected one: its own test
-            seen = highway_rollouts(env_id, "random", 1, seed, action=action, first_episode=episode,
-                                    env_config={"neighbour_vehicles_connected_lanes": True})
+            seen = highway_rollouts(Rollout(env_id, "random", action=action, env_config={"neighbour_vehicles_connected_lanes": True}), 1, seed, first_episode=episode)
             assert seen["collisions"] == 0 and seen["traffic_blind_steps"] == 0
     assert r["traffic_blind_steps"] > 0 and r["collisions"] == 0
 
@@ -274,5 +269,5 @@ def test_the_unchecked_entries_found_riding_the_ramps_border_are_gone(episode):
     body; the guardian then took the touched lane as held and let full right steering into it unjudged
     (episode 128), or the body was left overlapping it (183). Now the body keeps the margin from the
     road's edge and a touched lane is judged as an entry: the same episodes count none."""
-    r = highway_rollouts("guardian/Merge-v0", "reckless", 1, 0, action="continuous", first_episode=episode)
+    r = highway_rollouts(Rollout("guardian/Merge-v0", "reckless", action="continuous"), 1, 0, first_episode=episode)
     assert r["unchecked_entries"] == 0 and r["collisions"] == 0

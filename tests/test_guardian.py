@@ -7,14 +7,15 @@ from gymnasium.utils.env_checker import check_env
 
 import envs  # noqa: F401  (registers guardian/Overtake-v0)
 from envs.agents import make_agent
-from guardian.evaluation.rollouts import TWO_CARS_ENV, highway_env_config, highway_rollouts
+from guardian.config import GuardianConfig
+from guardian.evaluation.rollouts import TWO_CARS_ENV, Rollout, highway_env_config, highway_rollouts
 from guardian.decide.lead import FAILSAFE_INPUT, IntentionAwareGuardian
 from guardian.wrappers.guardian import Guardian
 
 
 def _two_cars(library, intention="cautious", disturbance="random", **extra):
-    return gym.make(TWO_CARS_ENV, config=highway_env_config(TWO_CARS_ENV, None, intention, disturbance, None,
-                                                             library, extra))
+    spec = Rollout(TWO_CARS_ENV, "", intention=intention, disturbance=disturbance, library=library, env_config=extra)
+    return gym.make(TWO_CARS_ENV, config=highway_env_config(spec))
 
 
 def test_the_two_car_env_passes_the_gymnasium_checker_and_observes_the_state():
@@ -49,13 +50,13 @@ def test_supervised_random_driver_never_leaves_the_invariant_set(library, intent
 
 
 def test_without_the_guardian_the_bad_driver_leaves_the_safe_set(library):
-    r = highway_rollouts(TWO_CARS_ENV, "bad", 6, 0, guardian=False, library=library, intention="cautious")
+    r = highway_rollouts(Rollout(TWO_CARS_ENV, "bad", guarded=False, library=library, intention="cautious"), 6, 0)
     assert r["safety_violations"] >= 4
 
 
 def test_intention_awareness_overrides_less_on_the_same_seeds(library):
-    aware = highway_rollouts(TWO_CARS_ENV, "mpc", 5, 3, library=library, intention="cautious")
-    pinned = highway_rollouts(TWO_CARS_ENV, "mpc", 5, 3, library=library, intention="cautious", use_intention=False)
+    aware = highway_rollouts(Rollout(TWO_CARS_ENV, "mpc", library=library, intention="cautious"), 5, 3)
+    pinned = highway_rollouts(Rollout(TWO_CARS_ENV, "mpc", library=library, intention="cautious", config=GuardianConfig(use_intention=False)), 5, 3)
     assert aware["safety_violations"] == pinned["safety_violations"] == 0
     assert aware["override_steps"] < pinned["override_steps"]
     assert aware["identified_fraction"] == 1.0 and aware["wrong_identifications"] == 0
@@ -94,8 +95,7 @@ def test_rerun_recording_has_the_scene_and_the_overrides(library, tmp_path):
     from guardian.recording.rerun import read_entities, read_texts
 
     path = tmp_path / "run.rrd"
-    r = highway_rollouts(TWO_CARS_ENV, "bad", 2, 0, library=library, intention="cautious", rerun_path=path,
-                         env_config={"duration": 8})
+    r = highway_rollouts(Rollout(TWO_CARS_ENV, "bad", library=library, intention="cautious", env_config={"duration": 8}), 2, 0, rerun_path=path)
     counts = read_entities(path)
     for entity in ("/road/lanes", "/road/ego", "/road/lead", "/inputs/proposed/throttle",
                    "/inputs/applied/steering", "/admissible/acceleration/low", "/admissible/steering/low",

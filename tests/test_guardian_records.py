@@ -156,7 +156,7 @@ def test_a_lane_reached_between_two_decisions_without_an_entry_is_not_allowed():
     step's start and the lanes entered during it, not every decision's lanes: a later decision starts where
     the body already is."""
     from guardian.model.decision import Decision
-    from guardian.wrappers.guardian import allowed_lanes
+    from guardian.wrappers.record import allowed_lanes
 
     start = Decision([0.0, 0.0], [0.0, 0.0], "none", lanes=[1])
     drifted = Decision([0.0, 0.0], [0.0, 0.0], "none", lanes=[1, 2])  # the body is over lane 2 now, unjudged

@@ -10,7 +10,7 @@ import envs  # noqa: F401
 import highway_env  # noqa: F401
 from guardian.errors import ConfigError
 from guardian.adapters.highway_env.monitor import ModelMonitor
-from guardian.evaluation.rollouts import OVERTAKE_ENV, highway_env_config, highway_rollouts
+from guardian.evaluation.rollouts import OVERTAKE_ENV, Rollout, highway_env_config, highway_rollouts
 from guardian.adapters.highway_env.scene import road_scene
 from guardian.decide.lead import IntentionAwareGuardian
 from guardian.wrappers.guardian import Guardian, GuardianConfig
@@ -21,7 +21,8 @@ SHORT = {"duration": 10}
 
 
 def _guarded(library, intention="aggressive", disturbance="adversarial", action=None, traffic=None, **extra):
-    cfg = highway_env_config(OVERTAKE_ENV, action, intention, disturbance, traffic, library, {**SHORT, **extra})
+    cfg = highway_env_config(Rollout(OVERTAKE_ENV, "", action=action, library=library, intention=intention,
+                                     disturbance=disturbance, traffic=traffic, env_config={**SHORT, **extra}))
     return Guardian(gym.make(OVERTAKE_ENV, config=cfg), library)
 
 
@@ -88,15 +89,13 @@ def test_info_layout(traffic_library):
 
 def test_without_the_guardian_random_and_reckless_agents_fail(traffic_library):
     for agent in ("random", "reckless"):
-        r = highway_rollouts(OVERTAKE_ENV, agent, 6, 0, guardian=False, library=traffic_library,
-                             intention="aggressive", disturbance="adversarial", env_config=SHORT)
+        r = highway_rollouts(Rollout(OVERTAKE_ENV, agent, guarded=False, library=traffic_library, intention="aggressive", disturbance="adversarial", env_config=SHORT), 6, 0)
         assert r["safety_violations"] + r["collisions"] >= 4, agent
 
 
 def test_with_the_guardian_the_same_agents_do_not(traffic_library):
     for agent in ("random", "reckless", "mpc", "brake_check", "trap"):
-        r = highway_rollouts(OVERTAKE_ENV, agent, 4, 0, library=traffic_library, intention="aggressive",
-                             disturbance="adversarial", env_config=SHORT, safe_start=True)
+        r = highway_rollouts(Rollout(OVERTAKE_ENV, agent, library=traffic_library, intention="aggressive", disturbance="adversarial", env_config=SHORT, config=GuardianConfig(resample_unsafe_start=True)), 4, 0)
         assert r["collisions"] == 0 and r["safety_violations"] == 0 and r["starts_outside"] == 0, agent
         assert r["unchecked_entries"] == 0 and r["reversing_steps"] == 0, agent
         assert r["model_violation_steps"] == 0 and r["wrong_identifications"] == 0, agent
@@ -105,9 +104,10 @@ def test_with_the_guardian_the_same_agents_do_not(traffic_library):
 def test_intention_awareness_overrides_less(traffic_library):
     """Behind the lead the guardian keeps F_R, which is the same for every intention; the identified
     intention's larger set pays off around the overtake (entering the left lane and passing)."""
-    kw = dict(library=traffic_library, intention="cautious", safe_start=True)
-    aware = highway_rollouts(OVERTAKE_ENV, "bad", 6, 0, **kw)
-    agnostic = highway_rollouts(OVERTAKE_ENV, "bad", 6, 0, use_intention=False, **kw)
+    kw = dict(library=traffic_library, intention="cautious")
+    aware = highway_rollouts(Rollout(OVERTAKE_ENV, "bad", **kw, config=GuardianConfig(resample_unsafe_start=True)), 6, 0)
+    agnostic = highway_rollouts(Rollout(OVERTAKE_ENV, "bad", **kw, config=GuardianConfig(
+        use_intention=False, resample_unsafe_start=True)), 6, 0)
     assert aware["override_steps"] < agnostic["override_steps"]
     assert aware["identified_fraction"] > 0 and aware["wrong_identifications"] == 0
 
@@ -207,7 +207,8 @@ def test_render_adds_the_guardian_panel(traffic_library):
 def test_starts_are_reported_and_can_be_drawn_again_until_safe(traffic_library):
     """Without the intention K holds F_R, which many of the env's own starts (inside C_bnd) miss; with
     it, F_R^M holds almost all of them (the campaign: 1 start outside in 256)."""
-    cfg = highway_env_config(OVERTAKE_ENV, None, "aggressive", "random", 4, traffic_library, dict(SHORT))
+    cfg = highway_env_config(Rollout(OVERTAKE_ENV, "", library=traffic_library, intention="aggressive", traffic=4,
+                                     env_config=dict(SHORT)))
     env = Guardian(gym.make(OVERTAKE_ENV, config=cfg), traffic_library, GuardianConfig(use_intention=False))
     outside = [not env.reset(seed=s)[1]["guardian"]["start_inside"] for s in range(30)]
     assert any(outside)  # the env's own starts (inside C_bnd) are not all inside K

@@ -1,7 +1,6 @@
-"""The generator honours its frame rate: every derivative in the files is the finite difference at that rate.
-
-Before, the derivatives were taken at a hard-coded 25 Hz, so at 10 Hz ``xAcceleration`` was 2.5 times
-the finite difference of ``xVelocity``.
+"""The generator honours its frame rate: every derivative in the files is the finite difference at that rate
+(taken at a fixed 25 Hz, a 10 Hz recording's ``xAcceleration`` would be 2.5 times the finite difference of
+``xVelocity``).
 """
 import numpy as np
 import pandas as pd

@@ -7,7 +7,8 @@ import pytest
 
 from guardian.highd.generate import TrafficParams, generate
 from guardian.errors import HighDFormatError
-from guardian.highd.reader import read_recording, recording_ids
+from guardian.highd.files import recording_ids
+from guardian.highd.reader import read_recording
 from guardian.highd.schema import TRACKS, TRACKS_META
 
 

@@ -7,8 +7,8 @@ import pytest
 from guardian.highd.convert import to_itha
 from guardian.highd.generate import TrafficParams, generate
 from guardian.highd.reader import read_recording
-from guardian.highd.replay import (ReplayConfig, car_following_params, default_sample, order_statistic_bounds,
-                                   replay, self_safety_overrides)
+from guardian.highd.rates import ReplayConfig, car_following_params, order_statistic_bounds, self_safety_overrides
+from guardian.highd.replay import default_sample, replay
 from itha.car_following import _headway_floor_arrays, headway_floor
 
 

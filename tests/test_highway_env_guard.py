@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from guardian.errors import ConfigError
-from guardian.evaluation.rollouts import highway_rollouts
+from guardian.evaluation.rollouts import Rollout, highway_rollouts
 from guardian.wrappers.guardian import Guardian
 
 SMALL = {"vehicles_count": 20, "duration": 12}
@@ -52,14 +52,14 @@ def test_applied_inputs_stay_in_the_input_bounds(action):
 
 @pytest.mark.parametrize("action", ["meta", "continuous"])
 def test_guardian_prevents_at_fault_collisions_of_a_reckless_agent(action):
-    guarded = highway_rollouts("highway-v0", "reckless", 3, seed=10, action=action, env_config=SMALL)
+    guarded = highway_rollouts(Rollout("highway-v0", "reckless", action=action, env_config=SMALL), 3, 10)
     assert guarded["ego_at_fault_collisions"] == 0 and guarded["collisions"] == 0
     assert guarded["override_steps"] > 0 and guarded["distance_mean"] > 100
     assert guarded["model_violation_steps"] == 0
 
 
 def test_the_same_agent_crashes_without_the_guardian():
-    free = highway_rollouts("highway-v0", "reckless", 4, seed=10, action="meta", guardian=False, env_config=SMALL)
+    free = highway_rollouts(Rollout("highway-v0", "reckless", action="meta", guarded=False, env_config=SMALL), 4, 10)
     assert free["collisions"] > 0 and free["override_steps"] == 0
 
 
@@ -86,7 +86,7 @@ def test_continuous_steering_into_an_occupied_lane_is_refused():
 
 def test_unknown_agent_is_refused():
     with pytest.raises(ValueError, match="unknown agent"):
-        highway_rollouts("highway-v0", "nobody", 1, 0)
+        highway_rollouts(Rollout("highway-v0", "nobody"), 1, 0)
 
 
 @pytest.mark.parametrize("env_id,config,match", [
@@ -168,6 +168,5 @@ def test_a_start_inside_is_reported_and_unsafe_starts_can_be_drawn_again():
 
 @pytest.mark.parametrize("action", ["meta", "continuous"])
 def test_dense_single_lane_traffic_never_makes_the_ego_reverse(action):
-    r = highway_rollouts("highway-v0", "reckless", 3, 0, action=action,
-                         env_config={"lanes_count": 1, "vehicles_density": 2.5, "duration": 15})
+    r = highway_rollouts(Rollout("highway-v0", "reckless", action=action, env_config={"lanes_count": 1, "vehicles_density": 2.5, "duration": 15}), 3, 0)
     assert r["reversing_steps"] == 0 and r["ego_at_fault_collisions"] == 0

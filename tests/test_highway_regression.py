@@ -1,8 +1,7 @@
-"""On the straight highway-v0 family the guardian decides exactly as it did before roads beyond one straight
-segment and many guarded cars were added: every applied input of seeded episodes, bit for bit.
+"""On the straight highway-v0 family the guardian decides exactly as recorded: every applied input of seeded
+episodes, bit for bit.
 
-The fixture (``tests/data/highway_decisions.json``) was recorded with the code of commit 38692e1 by
-``tests/highway_decisions.py``; see there.
+The fixture (``tests/data/highway_decisions.json``) is recorded by ``tests/highway_decisions.py``; see there.
 """
 import json
 

@@ -20,6 +20,23 @@ def test_car_following_sets_agents_and_the_supervisor_answer_their_protocols(lib
     assert not isinstance(object(), Supervisor)
 
 
+def test_the_decision_objects_and_the_scenario_supervisions_answer_their_protocols(traffic_library):
+    """Both decision objects answer ``DecisionObject``; both scenario families ``Supervision``; the wrapper
+    holds one of each, whatever the environment."""
+    import highway_env  # noqa: F401
+
+    from guardian.adapters.highway_env.supervision import Supervision
+    from guardian.decide.interface import DecisionObject
+    from guardian.wrappers.guardian import Guardian
+
+    for env_id, config in (("highway-fast-v0", {}), ("merge-v0", {}),
+                           ("guardian/HighwayOvertake-v0", {"params": traffic_library.params})):
+        env = Guardian(gym.make(env_id, config=config), traffic_library if "Overtake" in env_id else None)
+        env.reset(seed=0)
+        assert isinstance(env.supervision, Supervision) and isinstance(env.guard, DecisionObject), env_id
+    assert not isinstance(object(), DecisionObject) and not isinstance(object(), Supervision)
+
+
 def test_every_agent_acts_inside_the_action_space_of_every_env_it_drives():
     """One registry, one calling convention: each agent on the overtake envs and on highway-env (meta and
     continuous) returns actions of that space; the MPC drivers refuse highway-v0 and meta actions."""

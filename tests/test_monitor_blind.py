@@ -83,7 +83,7 @@ def _scene_of(road, ego, ego_slot):
     from guardian.adapters.highway_env.scene import road_scene
 
     road_map = read_road_map(road.network)
-    return road_scene(_Base(road, ego), road_map, frozenset({road_map.itha_lane(ego_slot)}), ego), road_map
+    return road_scene(_Base(road, ego), road_map, frozenset({road_map.numbering.itha(ego_slot)}), ego), road_map
 
 
 def _ego_and_one_car(connected: bool, car_x: float, car_speed: float, ego_x: float):
@@ -108,7 +108,7 @@ def test_an_entry_in_front_of_a_follower_that_cannot_see_the_ego_is_refused(conn
     _, _, road_map, scene, car = _ego_and_one_car(connected, 90.0, 20.0, 120.0)
     assert car.blind is not connected
     params = CarFollowingParams(dt=0.1, v_max=40.0, h_min=2.0, u_min=-6.0, u_max=6.0, d_min=-6.0, d_max=6.0)
-    verdict = TrafficSupervisor(params, params, "trivial").entry(scene, road_map.itha_lane(1))
+    verdict = TrafficSupervisor(params, params, "trivial").entry(scene, road_map.numbering.itha(1))
     assert verdict.responsible is connected
     if not connected:
         assert "does not see the ego" in verdict.reason
@@ -119,9 +119,9 @@ def test_a_car_ahead_that_cannot_see_the_ego_counts_in_the_lanes_it_may_change_i
     follower on its own segment and would change in front of the ego unseen, so the ego keeps room from
     it as if it were in its lane too; a car that sees the ego stays in its own lane."""
     road, ego, road_map, scene, car = _ego_and_one_car(False, 130.0, 15.0, 70.0)
-    assert car.blind and car.lanes == {road_map.itha_lane(0), road_map.itha_lane(1)}
-    assert scene.leader(road_map.itha_lane(0)) is car
+    assert car.blind and car.lanes == {road_map.numbering.itha(0), road_map.numbering.itha(1)}
+    assert scene.leader(road_map.numbering.itha(0)) is car
     ego.position[0] = 125.0   # now on the same segment: it sees the ego and stays in its own lane
     scene, _ = _scene_of(road, ego, 0)
     (car,) = scene.others
-    assert not car.blind and car.lanes == {road_map.itha_lane(1)}
+    assert not car.blind and car.lanes == {road_map.numbering.itha(1)}

@@ -126,7 +126,7 @@ def test_random_polytopes_against_the_referee_and_the_peer(n, kind, seed):
 
     bounded = np.all(np.isfinite(P.bounding_box()[1])) and np.all(np.isfinite(P.bounding_box()[0]))
     # projection onto the first two coordinates
-    if 3 <= n <= 5 and bounded:  # 6-D projection is LP-bound today (seconds): issue 16's open speed item
+    if 3 <= n <= 5 and bounded:  # 6-D projection is LP-bound (seconds each)
         Q = P.project([0, 1])
         lifted = rng.normal(size=(16, 2))
         for d in lifted:  # an inner approximation always (FM_ROUNDING lowers right-hand sides), exact when full-dim

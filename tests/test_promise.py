@@ -10,7 +10,7 @@ import highway_env  # noqa: F401
 import numpy as np
 
 import envs  # noqa: F401
-from guardian.evaluation.rollouts import OVERTAKE_ENV, highway_env_config, highway_rollouts
+from guardian.evaluation.rollouts import OVERTAKE_ENV, Rollout, highway_env_config, highway_rollouts
 from guardian.wrappers.guardian import Guardian
 
 PROMISE = ("ego_at_fault_collisions", "unchecked_entries", "reversing_steps", "unsupervised_steps")
@@ -21,48 +21,44 @@ def _kept(r: dict) -> bool:
 
 
 def test_random_agent_behind_an_aggressive_lead_among_traffic(traffic_library):
-    """Was: 16 of 244 episodes crashed, all caused by the ego (a leftward override into a fast car)."""
-    r = highway_rollouts(OVERTAKE_ENV, "random", 6, 100, library=traffic_library, intention="aggressive")
+    """Catches: 16 of 244 episodes crashed, all caused by the ego (a leftward override into a fast car)."""
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "random", library=traffic_library, intention="aggressive"), 6, 100)
     assert _kept(r) and r["safety_violations"] == 0
 
 
 def test_adversarial_noise_entries_refused_are_never_booked_responsible(traffic_library):
-    """Was: 14 of 112 crashed; an entry refused in the record was booked as responsible by the ledger."""
-    r = highway_rollouts(OVERTAKE_ENV, "random", 4, 2000, library=traffic_library, intention="aggressive",
-                         disturbance="adversarial")
+    """Catches: 14 of 112 crashed; an entry refused in the record was booked as responsible by the ledger."""
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "random", library=traffic_library, intention="aggressive", disturbance="adversarial"), 4, 2000)
     assert _kept(r) and r["safety_violations"] == 0
 
 
 def test_three_lanes_twelve_cars_six_from_behind(traffic_library):
-    """Was: collisions with 12 cars on 3 lanes and with 6 cars starting behind."""
-    r = highway_rollouts(OVERTAKE_ENV, "reckless", 3, 7, library=traffic_library, intention="aggressive",
-                         traffic=12, env_config={"lanes_count": 3, "traffic_from_behind": 6})
+    """Catches: collisions with 12 cars on 3 lanes and with 6 cars starting behind."""
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "reckless", library=traffic_library, intention="aggressive", traffic=12, env_config={"lanes_count": 3, "traffic_from_behind": 6}), 3, 7)
     assert _kept(r) and r["safety_violations"] == 0
 
 
 
 def test_a_seeking_agent_on_the_lane_line_stays_in_the_safe_set(traffic_library):
-    """Was (found by `guardian falsify`): the seek agent, 12 fast cars from behind, 3 lanes; the guardian kept
+    """Catches (found by `guardian falsify`): the seek agent, 12 fast cars from behind, 3 lanes; the guardian kept
     full throttle by steering along the lane line, where the noise decides whether the body touches the
     left lane, and the ego left the safe set (6.8) behind the lead at step 116."""
-    r = highway_rollouts(OVERTAKE_ENV, "seek", 1, 200001, library=traffic_library, intention="aggressive",
-                         action="continuous", traffic=12,
-                         env_config={"lanes_count": 3, "observation": {"type": "OvertakeState"},
-                                     "traffic_from_behind": 6, "traffic_speed_range": [30.0, 38.0]})
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "seek", library=traffic_library, intention="aggressive", action="continuous", traffic=12, env_config={"lanes_count": 3, "observation": {"type": "OvertakeState"},
+                                     "traffic_from_behind": 6, "traffic_speed_range": [30.0, 38.0]}), 1, 200001)
     assert _kept(r) and r["safety_violations"] == 0 and r["steps"] == 300
 
 def test_among_traffic_the_ego_may_wait_behind_the_lead():
-    """Was: with the dissertation's v_ex >= 16 the ego had to overtake into traffic; now the scenario's
+    """Catches: with the dissertation's v_ex >= 16 the ego had to overtake into traffic; now the scenario's
     default parameters let it stop, and the guardian refuses the old floor with traffic."""
     env = gym.make(OVERTAKE_ENV)
     assert env.unwrapped.params.v_ex_bounds[0] == 0.0 and env.unwrapped.config["traffic_count"] > 0
 
 
 def test_a_car_cutting_in_ahead_is_braked_for(traffic_library):
-    """Was: the guardian held the agent's full throttle for 3.8 s into a car that cut in 29 m ahead,
+    """Catches: the guardian held the agent's full throttle for 3.8 s into a car that cut in 29 m ahead,
     8 m/s slower. Here a car cuts into the ego's left lane 29 m ahead while the agent floors it."""
-    cfg = highway_env_config(OVERTAKE_ENV, None, "cautious", "random", 1, traffic_library,
-                             {"lanes_count": 3, "traffic_from_behind": 0, "duration": 8})
+    cfg = highway_env_config(Rollout(OVERTAKE_ENV, "", library=traffic_library, intention="cautious", traffic=1,
+                                     env_config={"lanes_count": 3, "traffic_from_behind": 0, "duration": 8}))
     env = Guardian(gym.make(OVERTAKE_ENV, config=cfg), traffic_library)
     env.reset(seed=0)
     base = env.unwrapped
@@ -84,16 +80,15 @@ def test_a_car_cutting_in_ahead_is_braked_for(traffic_library):
 
 
 def test_highway_fast_random_continuous_agents_of_the_reported_run():
-    """Was: 3 collisions in 30 episodes, one at the ego's fault (steering checked one step ahead) and one
+    """Catches: 3 collisions in 30 episodes, one at the ego's fault (steering checked one step ahead) and one
     from highway-env's extrapolating crash test with the bodies still apart."""
-    r = highway_rollouts("highway-fast-v0", "random", 30, 0, action="continuous")
+    r = highway_rollouts(Rollout("highway-fast-v0", "random", action="continuous"), 30, 0)
     assert _kept(r)
 
 
 def test_starts_no_guardian_can_save_are_counted_apart():
-    """Was: crashes at steps 1-2 from a start 5 m behind a car counted as the guardian's failures."""
-    r = highway_rollouts("highway-fast-v0", "reckless", 12, 0, action="meta",
-                         env_config={"vehicles_density": 2.5, "policy_frequency": 1})
+    """Catches: crashes at steps 1-2 from a start 5 m behind a car counted as the guardian's failures."""
+    r = highway_rollouts(Rollout("highway-fast-v0", "reckless", action="meta", env_config={"vehicles_density": 2.5, "policy_frequency": 1}), 12, 0)
     crashes = r["crashes"]
     assert r["starts_outside"] > 0 and _kept(r)
     assert r["ego_at_fault_collisions"] == sum(c["fault"] == "ego" and c["start_inside"] for c in crashes)
@@ -102,7 +97,7 @@ def test_starts_no_guardian_can_save_are_counted_apart():
 
 
 def test_exits_from_the_safe_set_are_counted_with_the_guardian_too(traffic_library, monkeypatch):
-    """Was: safety_violations counted only without the guardian. A forced exit is counted with it."""
+    """Catches: safety_violations counted only without the guardian. A forced exit is counted with it."""
     from envs.highway_overtake import HighwayOvertakeEnv
 
     real = HighwayOvertakeEnv.left_safe_set
@@ -113,7 +108,7 @@ def test_exits_from_the_safe_set_are_counted_with_the_guardian_too(traffic_libra
         return calls["n"] == 5 or real(self)
 
     monkeypatch.setattr(HighwayOvertakeEnv, "left_safe_set", sometimes)
-    r = highway_rollouts(OVERTAKE_ENV, "idle", 1, 0, library=traffic_library, env_config={"duration": 2})
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "idle", library=traffic_library, env_config={"duration": 2}), 1, 0)
     assert r["safety_violations"] == 1
 
 
@@ -122,8 +117,7 @@ def test_a_pile_up_ahead_is_not_run_into():
     stops faster than the traffic model allows; the ego, on the self-safety boundary behind it, touched
     it (at its fault). Those cars tailgate from the start: they are at risk of a crash, and the ego keeps
     room to stop behind a car that may stop at once."""
-    r = highway_rollouts("highway-v0", "trap", 1, 283008, action="meta",
-                         env_config={"duration": 15, "vehicles_density": 2.5})
+    r = highway_rollouts(Rollout("highway-v0", "trap", action="meta", env_config={"duration": 15, "vehicles_density": 2.5}), 1, 283008)
     assert r["collisions"] == 0 and r["ego_at_fault_collisions"] == 0
 
 
@@ -131,7 +125,6 @@ def test_a_car_cutting_into_the_egos_side_is_judged_at_contact():
     """Was (the campaign, seed 20023, 1 Hz): an IDM car beside the ego cuts into its lane and hits it; the
     crash then slides the ego over its lane line before the policy step ends. Judged at the step's end,
     both had entered each other's lane and the ego was at fault; at contact only the IDM car had."""
-    r = highway_rollouts("highway-v0", "trap", 1, 20023, action="continuous",
-                         env_config={"duration": 15, "vehicles_density": 2.5})
+    r = highway_rollouts(Rollout("highway-v0", "trap", action="continuous", env_config={"duration": 15, "vehicles_density": 2.5}), 1, 20023)
     assert r["starts_outside"] == 0 and r["collisions"] == 1
     assert [(c["fault"], c["rule"]) for c in r["crashes"]] == [("other", "entry")]

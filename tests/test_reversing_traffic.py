@@ -14,7 +14,7 @@ from highway_env.vehicle.kinematics import Vehicle
 import envs  # noqa: F401 - registers guardian/Merge-v0
 from guardian.config import GuardianConfig
 from guardian.adapters.highway_env.monitor import ModelMonitor
-from guardian.evaluation.rollouts import highway_rollouts
+from guardian.evaluation.rollouts import Rollout, highway_rollouts
 from guardian.model.roads import Road
 from guardian.model.reversing import reverse_reaches
 from guardian.adapters.highway_env.scene import road_scene
@@ -93,7 +93,7 @@ def test_a_guarded_car_never_reaches_a_car_that_backs_up_within_the_reach():
 def test_behind_a_queue_that_backs_up_the_reach_adds_up(monkeypatch):
     """The same falsifier behind two cars that reverse, the nearer one backing up to ``reverse_reach`` more
     than its leader: no contact from a start inside; with one reach per car (no queue rule) the draws crash."""
-    import guardian.adapters.highway_env.scene as sensing
+    import guardian.model.reversing as reversing
 
     def outcomes(seed):
         rng, covered = np.random.default_rng(seed), _highway(GuardianConfig())
@@ -102,7 +102,7 @@ def test_behind_a_queue_that_backs_up_the_reach_adds_up(monkeypatch):
 
     with_queue = outcomes(11)
     assert len(with_queue) >= 15 and not any(with_queue)
-    monkeypatch.setattr(sensing, "reverse_reaches", lambda fronts, speeds, lanes, reach:
+    monkeypatch.setattr(reversing, "reverse_reaches", lambda fronts, speeds, lanes, reach:
                         [reach if s < 0 else 0.0 for s in speeds])
     assert any(outcomes(11))
 
@@ -177,8 +177,7 @@ def test_the_at_fault_crashes_with_reversing_traffic_at_the_ramps_end_are_covere
               "observation": {"type": "AttributesObservation", "attributes": ["time"]}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        r = highway_rollouts("guardian/Merge-v0", "merge", 1, seed, action="meta", controlled=4, env_config=config,
-                             guardian_config=GuardianConfig(overapprox=overapprox), first_episode=episode)
+        r = highway_rollouts(Rollout("guardian/Merge-v0", "merge", action="meta", controlled=4, env_config=config, config=GuardianConfig(overapprox=overapprox)), 1, seed, first_episode=episode)
     assert r["ego_at_fault_collisions"] + r["ego_at_fault_after_outside_starts"] == 0, r["crashes"]
     assert r["unchecked_entries"] == 0 and r["traffic_reversing_uncovered_steps"] == 0
 

@@ -52,7 +52,7 @@ def _state(road, x, y, heading, speed, target=None):
 
 def _scene(road, ego: EgoState, cars=()):
     """Traffic as ``(front, speed, slot)``, the road's dead ends as standing cars."""
-    others = tuple(Car(f, v, frozenset({road.itha_lane(k)}), 5.0, f"car {i}") for i, (f, v, k) in enumerate(cars))
+    others = tuple(Car(f, v, frozenset({road.numbering.itha(k)}), 5.0, f"car {i}") for i, (f, v, k) in enumerate(cars))
     return Scene(Car(ego.front, ego.speed, frozenset(), 5.0, "ego"), others + road.end_cars(), road.n_lanes)
 
 

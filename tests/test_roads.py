@@ -44,7 +44,7 @@ def test_merge_v0_is_a_corridor_with_an_on_ramp_that_ends(merge):
     assert kinds == [("straight", 2, 0.0, 150.0), ("sine", 2, 150.0, 80.0)]
     assert merge.branches[0].open_before and not merge.branches[1].open_after
     assert merge.slot_of(("j", "k", 0)) == merge.slot_of(("k", "b", 0)) == merge.slot_of(("b", "c", 2)) == 2
-    assert merge.itha_lane(2) == 1 and merge.itha_lane(0) == 3
+    assert merge.numbering.itha(2) == 1 and merge.numbering.itha(0) == 3
     (end,) = merge.end_cars()
     assert (end.front, end.speed, end.length, end.lanes) == (310.0, 0.0, 0.0, frozenset({1}))
 

@@ -1,4 +1,4 @@
-"""The OpenAPI document describes every answer the service gives (issue 25, "a truthful contract").
+"""The OpenAPI document describes every answer the service gives (a truthful contract).
 
 Referees we did not write: openapi-spec-validator checks the document; openapi-core checks each response
 (status listed for the operation, body valid against the schema, headers) of requests chosen to

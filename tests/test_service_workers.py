@@ -1,4 +1,4 @@
-"""``guardian serve --workers N`` (issue 25 item 4): sessions pinned to a worker, connections routed to it.
+"""``guardian serve --workers N``: sessions pinned to a worker, connections routed to it.
 
 The row: "serve with two processes on one port: 145 of 300 steps answer 404, 21 of 50 streams close
 4404". Here every request goes out on a fresh connection (as curl or a retrying client does), so the

@@ -95,9 +95,9 @@ def test_highway_v0_videos_from_the_rollout_play_at_the_policy_frequency_without
     """highway-env's own metadata doubles the rate (``video_real_time_ratio`` 2); the rollout sets it to 1."""
     from moviepy import VideoFileClip
 
-    code = ("from guardian.evaluation.rollouts import highway_rollouts; "
-            f"highway_rollouts('highway-fast-v0', 'random', 1, 0, action='meta', guardian=False, "
-            f"env_config={{'duration': 2}}, video_dir={str(tmp_path / 'video')!r})")
+    code = ("from guardian.evaluation.rollouts import Rollout, highway_rollouts; "
+            f"highway_rollouts(Rollout('highway-fast-v0', 'random', action='meta', guarded=False, "
+            f"env_config={{'duration': 2}}), 1, 0, video_dir={str(tmp_path / 'video')!r})")
     env = {k: v for k, v in os.environ.items() if k not in ("SDL_VIDEODRIVER", "XDG_RUNTIME_DIR")}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr

@@ -206,25 +206,6 @@ def progress_bar(label: str):
     return ProgressBar(label)
 
 
-def combine_runs(runs: list) -> dict:
-    """One record for several runs: counts summed, means weighted by episodes, the runs kept under "runs"."""
-    out = {k: sum(r[k] for r in runs) for k, v in runs[0].items()
-           if isinstance(v, int) and not isinstance(v, bool) and all(isinstance(r.get(k), int) for r in runs)}
-    if all(isinstance(r.get("traffic_model_worst"), dict) for r in runs):
-        out["traffic_model_worst"] = {k: max(r["traffic_model_worst"].get(k, 0.0) for r in runs)
-                                      for k in runs[0]["traffic_model_worst"]}
-    if all("distance_mean" in r for r in runs):
-        out["distance_mean"] = sum(r["distance_mean"] * r["episodes"] for r in runs) / out["episodes"]
-    if all("identified_fraction" in r for r in runs):
-        ident = [(r["mean_steps_to_identify_intention"], r["identified_fraction"] * r["episodes"]) for r in runs
-                 if r["mean_steps_to_identify_intention"] is not None]
-        n_ident = sum(n for _, n in ident)
-        out["mean_steps_to_identify_intention"] = sum(m * n for m, n in ident) / n_ident if n_ident else None
-        out["identified_fraction"] = n_ident / out["episodes"]
-    out["runs"] = runs
-    return out
-
-
 def intention_name(text: str) -> str:
     """``all``, or an intention set by either name (``C_a``/``aggressive``, ``C_c``/``cautious``)."""
     from intention.library import set_name

@@ -101,7 +101,8 @@ def replay_text(result: dict) -> str:
 
 def cmd_replay(args) -> int:
     from guardian.errors import HighDFormatError, SchedulerError
-    from guardian.highd.replay import ReplayConfig, car_following_params, replay, self_safety_overrides
+    from guardian.highd.rates import ReplayConfig, car_following_params, self_safety_overrides
+    from guardian.highd.replay import replay
 
     if args.input_bounds == "data" and (args.u_min is not None or args.u_max is not None):
         return usage_error(args, "--u-min/--u-max do not apply with --input-bounds data (U comes from the data)")
@@ -131,7 +132,7 @@ def cmd_replay(args) -> int:
     if args.rerun:
         from pathlib import Path
 
-        from guardian.highd.reader import recording_ids
+        from guardian.highd.files import recording_ids
         from guardian.highd.replay import default_sample
         from guardian.recording.rerun import log_highd_recording
 

@@ -39,6 +39,7 @@ def promise_broken(result: dict) -> bool:
 
 
 def cmd_falsify(args) -> int:
+    from guardian.cli.rollout import replay_command
     from guardian.errors import SchedulerError
     from guardian.evaluation.campaign import matrix, run_campaign
 
@@ -55,6 +56,9 @@ def cmd_falsify(args) -> int:
                               progress_bar("falsify"))
     except SchedulerError as exc:
         return usage_error(args, f"--scheduler: {exc}")
+    failures = [dict({k: v for k, v in f.items() if k != "replay"}, command=replay_command(f["replay"]))
+                for f in result["failures"]]
+    result = dict(result, failures=sorted(failures, key=lambda f: (f["kind"], f["command"])))
     spread = f"on the Dask scheduler {args.scheduler}" if args.scheduler else f"{workers} worker(s)"
     lines = [f"{result['episodes']} episodes ({result['cells']} cells x {args.episodes}), "
              f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, {spread}", "",

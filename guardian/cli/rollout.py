@@ -13,11 +13,12 @@ stable-baselines3 policy file. Options that do not apply to the environment are 
 from __future__ import annotations
 
 import json
-import sys
+import shlex
+from dataclasses import replace
 from pathlib import Path
 
-from guardian.cli.common import (combine_runs, count, emit, intention_name, json_option, library_options,
-                                 load_library, output_file, output_folder, progress_bar, usage_error)
+from guardian.cli.common import (Parser, count, emit, intention_name, json_option, library_options, load_library,
+                                 output_file, output_folder, progress_bar, usage_error)
 
 OVERTAKE_ONLY = ("intention", "disturbance", "no_intention", "horizon")
 
@@ -29,8 +30,10 @@ def cmd_rollout(args) -> int:
     import highway_env  # noqa: F401 - registers the highway-env environments
     from envs.agents import AGENTS, BASELINES
     from envs.mpc import STYLES
-    from guardian.errors import ConfigError
-    from guardian.evaluation.rollouts import OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, _refuse_overridden, highway_env_config, highway_rollouts
+    from guardian.config import GuardianConfig
+    from guardian.errors import ConfigClash, ConfigError
+    from guardian.evaluation.rollouts import (OVERTAKE_ENV, OVERTAKE_ENVS, TWO_CARS_ENV, Rollout, combine_runs,
+                                              highway_env_config, highway_rollouts, refuse_set_keys)
 
     if args.env not in gym.registry:
         known = sorted(k for k in gym.registry if k.startswith(("highway", "merge", "exit", "guardian/")))
@@ -61,11 +64,17 @@ def cmd_rollout(args) -> int:
     refused = _conflicts(args, env_config) or _needs_cars(args, env_config, overtake)
     if refused:
         return usage_error(args, refused)
+    gcfg = GuardianConfig(use_intention=not args.no_intention, horizon=args.horizon, overapprox=args.overapprox,
+                          resample_unsafe_start=args.safe_start)
+    spec = Rollout(args.env, "", action=args.action, guarded=not args.no_guardian, config=gcfg,
+                   intention=intentions[0], disturbance=args.disturbance, traffic=args.traffic,
+                   controlled=args.controlled, env_config=env_config, policy_algo=args.algo)
     try:  # every key the rollout sets itself, checked before the sets are loaded
-        highway_env_config(args.env, args.action, intentions[0], args.disturbance, args.traffic, None, env_config,
-                           args.controlled)
+        highway_env_config(spec)
         if overtake:
-            _refuse_overridden(args.env, env_config, {"initial_region": None, "params": None})
+            refuse_set_keys(args.env, env_config, ("initial_region", "params"))
+    except ConfigClash as exc:
+        return usage_error(args, clash_message(exc))
     except ValueError as exc:
         return usage_error(args, str(exc))
     among_traffic = args.env == OVERTAKE_ENV and args.traffic != 0 and env_config.get("traffic_count", 1) != 0
@@ -76,22 +85,17 @@ def cmd_rollout(args) -> int:
                                  f"wait behind the lead; {OVERTAKE_ENV} with traffic takes --ego-speed-min 0 "
                                  f"(its default there; leave the option out)")
     library = load_library(args) if overtake else None  # initial states are drawn inside C_bnd, guarded or not
-    from guardian.config import GuardianConfig
-
-    gcfg = GuardianConfig(use_intention=not args.no_intention, horizon=args.horizon, overapprox=args.overapprox)
     runs = []
     for agent in agents:
         for intention in intentions:
             label = " ".join(x for x in (f"rollout {args.env}", intention, agent.split("/")[-1]) if x)
+            video = (args.video / "-".join(x for x in (intention, agent.split("/")[-1]) if x)) if args.video else None
+            run = replace(spec, agent=agent, intention=intention, library=library)
             try:
-                r = highway_rollouts(args.env, agent, args.episodes, args.seed, action=args.action,
-                                     guardian=not args.no_guardian, library=library, intention=intention,
-                                     disturbance=args.disturbance, traffic=args.traffic, guardian_config=gcfg,
-                                     safe_start=args.safe_start, env_config=env_config, horizon=args.horizon,
-                                     progress=progress_bar(label), rerun_path=args.rerun,
-                                     video_dir=(args.video / "-".join(x for x in (intention, agent.split("/")[-1]) if x))
-                                     if args.video else None, policy_algo=args.algo, controlled=args.controlled,
-                                     first_episode=args.first_episode)
+                r = highway_rollouts(run, args.episodes, args.seed, args.first_episode, progress_bar(label),
+                                     rerun_path=args.rerun, video_dir=video)
+            except ConfigClash as exc:
+                return usage_error(args, clash_message(exc))
             except (ConfigError, ValueError) as exc:
                 return usage_error(args, str(exc))
             r.update({"env": args.env, "agent": agent, "action": action_name(args.env, args.action, env_config),
@@ -104,6 +108,47 @@ def cmd_rollout(args) -> int:
     result = runs[0] if len(runs) == 1 else combine_runs(runs)
     emit(result, args.json, "\n".join(_summary(args, r) for r in runs))
     return 0
+
+
+LIBRARY_SETS = {"initial_region": "the set library (starts are drawn in its C_bnd)",
+                "params": "the set library's parameters (--ego-speed-min)"}
+
+
+def _rollout_parser():
+    """The ``guardian rollout`` sub-command's parser, as the command line builds it."""
+    sub = Parser(prog="guardian").add_commands("command")
+    add_commands(sub)
+    return sub.choices["rollout"]
+
+
+def option_of(dest: str) -> str:
+    """The ``guardian rollout`` option that sets ``dest`` (its long form)."""
+    for action in _rollout_parser()._actions:
+        if action.dest == dest and action.option_strings:
+            return action.option_strings[-1]
+    raise KeyError(f"guardian rollout has no option for {dest!r}")
+
+
+def clash_message(exc) -> str:
+    """A ``ConfigClash`` in the command line's words: the option that sets the key, not the field."""
+    setting = LIBRARY_SETS[exc.key] if exc.setting == "library" else option_of(exc.setting)
+    return f"{exc.env_id}: config key {exc.key!r} is set by {setting}; give it there, not in the env config"
+
+
+def replay_command(replay: dict) -> str:
+    """The ``guardian rollout`` command line of ``replay`` (``{option dest: value}``, as
+    ``guardian.evaluation.campaign.Cell.replay`` gives it): a flag for ``True``, one ``--env-config
+    KEY=VALUE`` per key of ``env_config``, ``--json`` last."""
+    parts = ["guardian rollout"]
+    for dest, value in replay.items():
+        option = option_of(dest)
+        if value is True:
+            parts.append(option)
+        elif dest == "env_config":
+            parts += [f"{option} {shlex.quote(k + '=' + json.dumps(v).replace(' ', ''))}" for k, v in value.items()]
+        elif value is not None and value is not False:
+            parts.append(f"{option} {shlex.quote(str(value))}")
+    return " ".join(parts + [option_of("json")])
 
 
 def _inapplicable(args, overtake: bool) -> str | None:

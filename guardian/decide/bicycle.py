@@ -26,10 +26,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from guardian.model.decision import Decision, Entry
 from guardian.decide.kinematics import BicycleEgo
-from guardian.model.scene import EgoState, Scene
 from guardian.decide.traffic import TrafficSupervisor
+from guardian.model.decision import Decision, Entry
+from guardian.model.lanes import LaneNumbering
+from guardian.model.scene import EgoState, Scene
 from itha.car_following import CarFollowingParams
 from rcis.intervals import intersect_intervals, nearest_in_intervals
 
@@ -41,7 +42,7 @@ class BicycleGuardian:
     ----------
     kin : BicycleEgo or RoadMapEgo
         The ego's kinematics (step, lanes, steering limits) on its road.
-    config : guardian.wrappers.guardian.GuardianConfig
+    config : guardian.config.GuardianConfig
     meta : bool
         The agent gives meta actions (the vehicle's controller steers).
     """
@@ -52,16 +53,20 @@ class BicycleGuardian:
                                 u_max=c.traffic_accel, d_min=-c.traffic_accel, d_max=c.traffic_accel)
         self.traffic = TrafficSupervisor(cf, None, c.overapprox, c.wreck_margin)
         self.kin, self.config, self.meta = kin, config, meta
+        self.lanes = LaneNumbering(kin.n_lanes)   # the kinematics' slots, the scene's and decisions' ITHA lanes
         self.reset()
 
     def reset(self) -> None:
-        self._limits = []
         self.home = None
-        self.held = None          # highway lane ids the body may overlap: the start's, home, responsible entries
-        self.authorized = set()   # highway lane ids being entered after a responsible entry
+        self.held = None          # slots the body may overlap: the start's, home, responsible entries
+        self.authorized = set()   # slots being entered after a responsible entry
 
-    def itha_lane(self, lane_id: int) -> int:
-        return self.kin.n_lanes - lane_id
+    def inside(self, ego: EgoState, scene: Scene) -> bool:
+        """Is ``ego`` inside its invariant set: some acceleration self-safe (7.4) towards the cars ahead in
+        every lane its body overlaps?"""
+        lanes = self.lanes.itha_set(set(self.kin.body_lanes(ego)) or {ego.lane})
+        speeds, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes(lanes))
+        return bool(self.kin.accel_for_speeds(ego.speed, speeds))
 
     # ---- policy level (meta agents) ------------------------------------------------------------------
     def policy_lane_change(self, ego: EgoState, scene: Scene, target: int) -> tuple[bool, str]:
@@ -73,11 +78,11 @@ class BicycleGuardian:
             return False, "no such lane"
         if not self.kin.lane_here(target, ego):
             return False, "no lane there at this point of the road"
-        lane = self.itha_lane(target)
-        verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(ego.lane)}), lane)
+        lane, home = self.lanes.itha(target), self.lanes.itha(ego.lane)
+        verdict = self.traffic.entry(scene.with_ego_lanes({home}), lane)
         if not verdict.responsible:
             return False, verdict.reason
-        both = {self.itha_lane(ego.lane), lane}
+        both = {home, lane}
         speeds, why = self.traffic.self_safe_speeds(scene.with_ego_lanes(both))
         ok = bool(self.kin.accel_for_speeds(ego.speed, intersect_intervals(speeds, verdict.speeds)))
         return ok, "" if ok else (why or "no input reaches a responsible and self-safe speed")
@@ -123,21 +128,21 @@ class BicycleGuardian:
         else:
             steer, occupied, entry = self._steering(ego, scene, now, held, steer_prop, d, touched)
         entry = intersect_intervals(entry, touched_speeds)
-        accel = self._accelerations(ego, scene, occupied, entry, d)
+        accel, limits = self._accelerations(ego, scene, occupied, entry, d)
         if accel:
             a = nearest_in_intervals(accel, a_prop)
             if abs(a - a_prop) > 1e-9:
-                self._explain(ego, a_prop, a, d)
+                self._explain(ego, a_prop, a, limits, d)
         else:
             a = max(-self.config.traffic_accel, -ego.speed / kin.dt)
             d.level, d.changed = "failsafe", "failsafe"
             d.note("failsafe: no self-safe acceleration; braking as hard as the model allows, down to standstill")
         d.applied = [a, steer]
-        self.authorized |= {self.kin.n_lanes - lane for lane in d.entered}
+        self.authorized |= self.lanes.slot_set(_entered(d))
         self.held |= self.authorized
-        d.entered = sorted({self.itha_lane(i) for i in self.authorized})
-        d.lanes = sorted({self.itha_lane(i) for i in self.held})  # never a lane entered unchecked
-        d.touched = sorted({self.itha_lane(i) for i in touched - self.held})
+        d.entered = sorted(self.lanes.itha_set(self.authorized))
+        d.lanes = sorted(self.lanes.itha_set(self.held))  # never a lane entered unchecked
+        d.touched = sorted(self.lanes.itha_set(touched - self.held))
         d.admissible_acceleration = [list(r) for r in accel]
         d.in_invariant_set = bool(accel)
         if d.changed == "none" and (abs(a - a_prop) > 1e-9 or abs(steer - steer_prop) > 1e-12):
@@ -152,10 +157,11 @@ class BicycleGuardian:
         speeds_all = [(0.0, np.inf)]
         refused = set()
         for lane_id in sorted(now - self.held):
-            d.note(f"the road brings lane {self.itha_lane(lane_id)} to the body")
+            lane = self.lanes.itha(lane_id)
+            d.note(f"the road brings lane {lane} to the body")
             speeds = self._entry(ego, scene, self.held, lane_id, d)
             if speeds is None:
-                d.note(f"lane {self.itha_lane(lane_id)} touched, its entry refused: {d.entries[-1].reason}")
+                d.note(f"lane {lane} touched, its entry refused: {d.entries[-1].reason}")
                 refused.add(lane_id)
                 continue
             speeds_all = intersect_intervals(speeds_all, speeds)
@@ -166,7 +172,7 @@ class BicycleGuardian:
     def _entry(self, ego: EgoState, scene: Scene, now: set, lane_id: int, d: Decision) -> list | None:
         """Next speeds making the entry into highway lane ``lane_id`` responsible (7.5) and self-safe in
         both lanes; None (and the refusal recorded) when there are none."""
-        lane = self.itha_lane(lane_id)
+        lane = self.lanes.itha(lane_id)
         start = now if len(now) == 1 else {ego.lane}  # straddling: judged from the lane it is closest to
         if abs(next(iter(start)) - lane_id) != 1:
             d.entries.append(Entry(lane, False, "not next to the lane the ego is in"))
@@ -176,10 +182,10 @@ class BicycleGuardian:
             d.entries.append(Entry(lane, False, "no lane there at this point of the road"))
             d.refused.append(lane)
             return None
-        verdict = self.traffic.entry(scene.with_ego_lanes({self.itha_lane(i) for i in start}), lane)
+        verdict = self.traffic.entry(scene.with_ego_lanes(self.lanes.itha_set(start)), lane)
         speeds = verdict.speeds
         if verdict.responsible:
-            safe, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes({self.itha_lane(i) for i in now} | {lane}))
+            safe, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes(self.lanes.itha_set(now) | {lane}))
             speeds = intersect_intervals(speeds, safe)
         ok = verdict.responsible and bool(self.kin.accel_for_speeds(ego.speed, speeds))
         reason = verdict.reason or ("" if ok else "no acceleration reaches a responsible, self-safe speed")
@@ -187,7 +193,6 @@ class BicycleGuardian:
         if not ok:
             d.refused.append(lane)
             return None
-        d.entered.append(lane)
         return speeds
 
     def _meta_lanes(self, ego: EgoState, scene: Scene, now: set, held: set, d: Decision):
@@ -197,7 +202,7 @@ class BicycleGuardian:
             speeds = self._entry(ego, scene, held, ego.target_lane, d)
             if speeds is None:
                 d.changed = "lane_change"
-                d.note(f"lane change to lane {self.itha_lane(ego.target_lane)} abandoned: {d.entries[-1].reason}")
+                d.note(f"lane change to lane {self.lanes.itha(ego.target_lane)} abandoned: {d.entries[-1].reason}")
                 return now | {ego.lane}, [(0.0, np.inf)]
             return now | {ego.lane, ego.target_lane}, speeds
         return now | {ego.lane, ego.target_lane}, [(0.0, np.inf)]
@@ -217,7 +222,7 @@ class BicycleGuardian:
                 return float(steer)
             if k == 0:
                 d.note(f"steering {proposed:.3f} rad refused: the lane change's path would reach lanes "
-                       f"{sorted(self.itha_lane(i) for i in beyond)} beyond the lanes it holds")
+                       f"{sorted(self.lanes.itha_set(beyond))} beyond the lanes it holds")
         d.level, d.changed = "failsafe", "failsafe"
         d.note("failsafe: no steering keeps the body in the lanes the lane change holds; straightening")
         return float(kin.recovery(ego))
@@ -241,14 +246,14 @@ class BicycleGuardian:
             new = lanes - held
             entry = [(0.0, np.inf)]
             if new & touched:
-                d.note(why and why + f"the body would stay in lanes {sorted(self.itha_lane(i) for i in new & touched)}"
+                d.note(why and why + f"the body would stay in lanes {sorted(self.lanes.itha_set(new & touched))}"
                        ", whose entry is refused")
                 continue
             if new:
                 if k > 0 or len(held) != 1 or len(new) != 1:
-                    d.note(why and why + (f"it would enter lanes {sorted(self.itha_lane(i) for i in new)} at once"
+                    d.note(why and why + (f"it would enter lanes {sorted(self.lanes.itha_set(new))} at once"
                                           if len(held) == 1 else "it would enter another lane while the body "
-                                          f"straddles lanes {sorted(self.itha_lane(i) for i in held)}"))
+                                          f"straddles lanes {sorted(self.lanes.itha_set(held))}"))
                     continue
                 entry = self._entry(ego, scene, held, next(iter(new)), d)
                 if entry is None:
@@ -261,37 +266,39 @@ class BicycleGuardian:
         lanes, _ = kin.path_lanes_of(ego, steer)
         return steer, now | set(lanes), [(0.0, np.inf)]
 
-    def _accelerations(self, ego: EgoState, scene: Scene, occupied: set, entry: list, d: Decision) -> list:
+    def _accelerations(self, ego: EgoState, scene: Scene, occupied: set, entry: list, d: Decision) -> tuple:
         """Self-safe accelerations (7.4) in every occupied lane, within the entry's responsible speeds,
-        keeping each entered lane's follower while that is possible."""
+        keeping each entered lane's follower while that is possible; and the limits on the next speed, named
+        (``[(name, speeds), ...]``, for ``_explain``)."""
         kin = self.kin
-        itha = {self.itha_lane(i) for i in occupied}
+        itha = self.lanes.itha_set(occupied)
         ego_scene = scene.with_ego_lanes(itha)
-        self._limits = [(f"self-safety towards {car.name} ahead in lane {lane}" + self._risk_note(ego_scene, car), sp)
-                        for lane, car, sp in self.traffic.leader_speeds(ego_scene)]
+        limits = [(f"self-safety towards {car.name} ahead in lane {lane}" + self._risk_note(ego_scene, car), sp)
+                  for lane, car, sp in self.traffic.leader_speeds(ego_scene)]
         speeds, why = self.traffic.self_safe_speeds(ego_scene)
         d.note(why)
         speeds = intersect_intervals(speeds, entry)
-        if d.entered:
-            self._limits.append((f"the entry into lane {d.entered[-1]} (7.5)", entry))
+        entered = _entered(d)
+        if entered:
+            limits.append((f"the entry into lane {entered[-1]} (7.5)", entry))
         progress = kin.progress_of(ego)
-        for lane in sorted(itha - {self.itha_lane(self.home)}):
+        for lane in sorted(itha - {self.lanes.itha(self.home)}):
             fs, why = self.traffic.follower_speeds(ego_scene, lane, ego_progress_min=progress)
             kept = intersect_intervals(speeds, fs)
             if kin.accel_for_speeds(ego.speed, kept):
                 speeds = kept
-                self._limits.append((f"keeping the follower in lane {lane} safe while entering it", fs))
+                limits.append((f"keeping the follower in lane {lane} safe while entering it", fs))
             else:
                 d.level = "follower_dropped"
                 d.note(why)
                 d.note("responsibility for a follower not kept (it was responsible when the entry began)")
-        return kin.accel_for_speeds(ego.speed, speeds)
+        return kin.accel_for_speeds(ego.speed, speeds), limits
 
     def _risk_note(self, scene: Scene, car) -> str:
         risk = self.traffic.at_risk(scene, car)
         return f" (at risk of a crash, kept as if it may stop at once: {risk})" if risk else ""
 
-    def _explain(self, ego: EgoState, a_prop: float, a: float, d: Decision) -> None:
+    def _explain(self, ego: EgoState, a_prop: float, a: float, limits: list, d: Decision) -> None:
         """Say which part limited the acceleration; a clip at the speed bound alone is a modelling clip."""
         v_prop = ego.speed + self.kin.dt * a_prop
         if a_prop > a and v_prop > self.config.v_max and a >= (self.config.v_max - ego.speed) / self.kin.dt - 1e-6:
@@ -302,8 +309,13 @@ class BicycleGuardian:
             d.clipped_to_model = True
             d.note(f"acceleration clipped to the model's bound ±{self.kin.accel:g} m/s^2")
             return
-        for name, speeds in self._limits:
+        for name, speeds in limits:
             if not any(lo <= v_prop <= hi for lo, hi in speeds):
                 bound = max((hi for lo, hi in speeds if hi < v_prop), default=None)
                 d.note(f"acceleration limited by {name}" + (f": next speed at most {bound:.2f} m/s" if bound is not None
                                                              else ""))
+
+
+def _entered(d: Decision) -> list:
+    """The ITHA lanes whose entry was judged responsible so far in this step, in the order judged."""
+    return [e.lane for e in d.entries if e.responsible]

@@ -24,14 +24,11 @@ import math
 
 import numpy as np
 
+from guardian.model.body import half_extents, lanes_overlapped
+from guardian.model.roads import outline
 from intention.params import OvertakeParams
 
 ROUNDING = 1e-9  # input intervals are shrunk by this so that a rounded step stays inside
-
-
-def _lanes_overlapped(lo: float, hi: float, n_lanes: int, width: float) -> frozenset:
-    """Lanes k = 0.. (centre ``k * width``) that the open interval ``(lo, hi)`` overlaps."""
-    return frozenset(k for k in range(n_lanes) if lo < (k + 0.5) * width and hi > (k - 0.5) * width)
 
 
 class PointMassEgo:
@@ -65,7 +62,7 @@ class PointMassEgo:
 
     def lanes_at(self, y: float) -> frozenset:
         """ITHA lanes (1 = right) the ego's body overlaps at lateral position ``y``."""
-        ks = _lanes_overlapped(y - self.half_width, y + self.half_width, self.n_lanes, self.lane_width)
+        ks = lanes_overlapped(y - self.half_width, y + self.half_width, self.n_lanes, self.lane_width)
         return frozenset(k + 1 for k in ks)
 
     def centre(self, lane: int) -> float:
@@ -75,7 +72,7 @@ class PointMassEgo:
     def lanes_with(self, y: float, v_ey: float, w_ey: float) -> frozenset:
         """Lanes the body overlaps after one step with lateral input ``v_ey`` and disturbance ``w_ey``."""
         centre = y + self.p.dt * (v_ey + w_ey)
-        return frozenset(k + 1 for k in _lanes_overlapped(centre - self.half_width, centre + self.half_width,
+        return frozenset(k + 1 for k in lanes_overlapped(centre - self.half_width, centre + self.half_width,
                                                           self.n_lanes, self.lane_width))
 
     def next_lanes(self, y: float, v_ey: float) -> frozenset:
@@ -159,12 +156,12 @@ class BicycleEgo:
 
     def half_extent(self, heading: float) -> float:
         """Half the lateral reach of the body at ``heading``."""
-        return self.length / 2 * abs(math.sin(heading)) + self.width / 2 * abs(math.cos(heading))
+        return half_extents(self.length, self.width, heading)[1]
 
     def lanes_at(self, y: float, heading: float) -> frozenset:
         """highway-env lane ids (0 = leftmost) the body overlaps."""
         r = self.half_extent(heading)
-        return _lanes_overlapped(y - r, y + r, self.n_lanes, self.lane_width)
+        return lanes_overlapped(y - r, y + r, self.n_lanes, self.lane_width)
 
     def off_road(self, y: float, heading: float) -> bool:
         r = self.half_extent(heading)
@@ -182,7 +179,7 @@ class BicycleEgo:
         crashes bodies that would meet."""
         r = self.half_extent(heading) + self.LATERAL_MARGIN
         dy = self.dt * speed * math.sin(heading)
-        return _lanes_overlapped(min(y, y + dy) - r, max(y, y + dy) + r, self.n_lanes, self.lane_width)
+        return lanes_overlapped(min(y, y + dy) - r, max(y, y + dy) + r, self.n_lanes, self.lane_width)
 
     def off_road_depth(self, y: float, heading: float) -> float:
         """How far [m] the body reaches beyond the road's edges (0 on the road)."""
@@ -333,8 +330,6 @@ class RoadMapEgo(BicycleEgo):
         """How far the body, widened by ``LATERAL_MARGIN`` (as against lane borders), reaches off the road: a
         body kept at depth 0 stays that far inside the road's edges, so a lane that begins beyond an edge
         (an on-ramp's parallel part, an exit lane) does not begin under it."""
-        from guardian.model.roads import outline
-
         m = 2 * self.LATERAL_MARGIN
         px, py = outline(xs, ys, hs, self.length + m, self.width + m)
         d = self.road.depth(px, py)

@@ -101,7 +101,7 @@ class PointMassGuardian:
     traffic : bool
         Other cars may share the road: compose with ITHA and keep ``K``; False gives the two-car
         guardian of Section 6.5 unchanged.
-    config : guardian.wrappers.guardian.GuardianConfig
+    config : guardian.config.GuardianConfig
     stops_at_zero : bool
         The simulator clips the ego's speed at 0 (``HighwayOvertake-v0`` does).
     """

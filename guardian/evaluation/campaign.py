@@ -1,7 +1,7 @@
 """The falsification campaign: many seeded episodes of adversarial and random agents, one table.
 
 A campaign is a list of ``Cell`` (an environment configuration and an agent) run for some episodes
-each. Every episode is one ``guardian rollout --episodes 1 --seed S`` (``Cell.command`` prints it), so
+each. Every episode is one ``guardian rollout --episodes 1 --seed S`` (``Cell.replay`` gives its options), so
 any failure the table reports can be replayed alone. Episodes are spread over local processes or a
 Dask cluster (``scheduler``), as the HighD replay does; results do not depend on how they are spread.
 
@@ -20,7 +20,7 @@ overtake state (highway-env's Kinematics table costs 60 % of their step) and ``h
 last 15 s instead of 40 (its 50 cars at 15 Hz make it five times slower than ``highway-fast-v0``); both
 are part of each cell's config, so the replay command reproduces them.
 
-``only="roads"`` (``guardian falsify --only roads``; not part of the default matrix, which stays as it was)
+``only="roads"`` (``guardian falsify --only roads``; not part of the default matrix)
 runs the roads beyond one straight segment: ``merge-v0``, ``merge-generic-v0`` (meta; highway-env's merge
 envs fail with continuous actions), ``guardian/Merge-v0`` with merge-v0's traffic (both action types),
 ``exit-v0`` (both), each with ``ROAD_AGENTS`` and the ``merge`` agent; and several guarded cars on
@@ -34,11 +34,13 @@ The counts are ``guardian.evaluation.tally.HighwayTally``'s (each by a written r
 from __future__ import annotations
 
 import json
-import shlex
 import time
 import traceback
-from contextlib import contextmanager
 from dataclasses import dataclass, field
+
+from guardian.config import GuardianConfig
+from rcis.parallel import Jobs
+from guardian.evaluation.rollouts import Rollout, highway_rollouts
 
 OVERTAKE_ENV = "guardian/HighwayOvertake-v0"
 ROAD_AGENTS = ("random", "reckless", "seek", "brake_check", "oscillate", "hold", "trap")
@@ -88,20 +90,28 @@ class Cell:
     def config(self) -> dict:
         return {k: json.loads(v) for k, v in self.env_config}
 
-    def command(self, seed: int) -> str:
-        """The ``guardian rollout`` that replays episode ``seed`` of this cell alone."""
-        parts = ["guardian rollout", f"--env {self.env}", f"--agent {self.agent}", f"--action {self.action}"]
+    def replay(self, seed: int) -> dict:
+        """The ``guardian rollout`` options (by their argparse names) that replay episode ``seed`` of this cell
+        alone; ``guardian.cli.rollout.replay_command`` writes them as a command line."""
+        out = {"env": self.env, "agent": self.agent, "action": self.action}
         if self.env == OVERTAKE_ENV:
-            parts += [f"--intention {self.intention}", f"--disturbance {self.disturbance}", f"--traffic {self.traffic}"]
-        parts += [f"--env-config {shlex.quote(k + '=' + v.replace(' ', ''))}" for k, v in self.env_config]
+            out.update({"intention": self.intention, "disturbance": self.disturbance, "traffic": self.traffic})
+        out["env_config"] = self.config
         if self.controlled is not None:
-            parts.append(f"--controlled {self.controlled}")
+            out["controlled"] = self.controlled
         if self.overapprox != "trivial":
-            parts.append(f"--overapprox {self.overapprox}")
+            out["overapprox"] = self.overapprox
         if not self.guardian:
-            parts.append("--no-guardian")
-        parts += ["--episodes 1", f"--seed {seed}", "--json"]
-        return " ".join(parts)
+            out["no_guardian"] = True
+        out.update({"episodes": 1, "seed": seed})
+        return out
+
+    def rollout(self, library=None) -> Rollout:
+        """The cell as a rollout setting (``library``: the overtake sets its env needs)."""
+        return Rollout(self.env, self.agent, action=self.action, guarded=self.guardian,
+                       config=GuardianConfig(overapprox=self.overapprox), library=library, intention=self.intention,
+                       disturbance=self.disturbance, traffic=self.traffic, controlled=self.controlled,
+                       env_config=self.config)
 
 
 def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
@@ -161,20 +171,11 @@ def _library(traffic: int, cache_dir):
 
 def run_episode(cell: Cell, seed: int, cache_dir=None) -> dict:
     """One episode of ``cell``: the tally's counts, or the exception it raised."""
-    from guardian.evaluation.rollouts import highway_rollouts
-
-    from guardian.config import GuardianConfig
-
     try:
         library = _library(cell.traffic, cache_dir) if cell.env == OVERTAKE_ENV else None
-        r = highway_rollouts(cell.env, cell.agent, 1, seed, action=cell.action, guardian=cell.guardian,
-                             library=library, intention=cell.intention, disturbance=cell.disturbance,
-                             traffic=cell.traffic, env_config=cell.config, controlled=cell.controlled,
-                             guardian_config=GuardianConfig(overapprox=cell.overapprox)
-                             if cell.overapprox != "trivial" else None)
+        return highway_rollouts(cell.rollout(library), 1, seed)
     except Exception:  # noqa: BLE001 - an episode that raises is a finding, counted and kept
         return {"exception": traceback.format_exc(limit=6)}
-    return r
 
 
 def _chunk(cell: Cell, seeds: list, cache_dir) -> list:
@@ -200,7 +201,7 @@ class Campaign:
             for k in COUNTED:
                 row[k] += r.get(k) or 0
         if "exception" in r:
-            self.failures.append({"kind": "exception", "cell": cell.setting, "command": cell.command(seed),
+            self.failures.append({"kind": "exception", "cell": cell.setting, "replay": cell.replay(seed),
                                   "detail": r["exception"].strip().splitlines()[-1]})
             return
         for crash in r["crashes"]:
@@ -208,13 +209,13 @@ class Campaign:
             if blamed or not crash["start_inside"]:
                 self.failures.append({"kind": "at-fault collision" if crash["start_inside"] and blamed
                                       else "collision after a start outside", "fault": crash["fault"],
-                                      "rule": crash["rule"], "cell": cell.setting, "command": cell.command(seed)})
+                                      "rule": crash["rule"], "cell": cell.setting, "replay": cell.replay(seed)})
         for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps"):
             if r.get(k):
-                self.failures.append({"kind": k, "count": r[k], "cell": cell.setting, "command": cell.command(seed)})
+                self.failures.append({"kind": k, "count": r[k], "cell": cell.setting, "replay": cell.replay(seed)})
         if cell.env == OVERTAKE_ENV and r.get("safety_violations"):
             kind = "safe-set exit after a start outside" if r.get("starts_outside") else "safe-set exit"
-            self.failures.append({"kind": kind, "cell": cell.setting, "command": cell.command(seed)})
+            self.failures.append({"kind": kind, "cell": cell.setting, "replay": cell.replay(seed)})
 
     @staticmethod
     def _keys(cell: Cell) -> list:
@@ -252,18 +253,20 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None 
     -------
     dict
         ``episodes, seconds, workers, totals`` (the counts summed), ``by_env`` (per environment and
-        action type), ``by_agent``, ``by_setting``, and ``failures`` (each with the command replaying it).
+        action type), ``by_agent``, ``by_setting``, and ``failures`` (each with the rollout options replaying it, ``replay``).
     """
     jobs = [(cell, [seed + 1000 * k + i for i in range(start, min(start + CHUNK, episodes))])
             for k, cell in enumerate(cells) for start in range(0, episodes, CHUNK)]
     total = sum(len(s) for _, s in jobs)
     cache = str(cache_dir) if cache_dir else None
-    with _client(scheduler) as client:  # connected first: an unreachable scheduler is refused before any work
+    with Jobs(workers or 1, scheduler) as pool:  # connected first: an unreachable scheduler is refused at once
         if any(c.env == OVERTAKE_ENV for c in cells):  # build the sets once, before the workers need them
             for traffic in {c.traffic for c in cells if c.env == OVERTAKE_ENV}:
                 _library(traffic, cache)
         camp, done, t0 = Campaign(), 0, time.perf_counter()
-        for cell, results in _run_jobs(jobs, workers, client, cache):
+        running = {k: pool.submit(_chunk, cell, seeds, cache) for k, (cell, seeds) in enumerate(jobs)}
+        for k, results in pool.as_completed(running):
+            cell = jobs[k][0]
             for s, r in results:
                 camp.add(cell, s, r)
             done += len(results)
@@ -273,39 +276,7 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None 
             "scheduler": scheduler, "cells": len(cells), "episodes_per_cell": episodes,
             "totals": camp.table("all")[0] if camp.episodes else {}, "by_env": camp.table("env"),
             "by_agent": camp.table("agent"), "by_setting": camp.table("setting"),
-            "failures": sorted(camp.failures, key=lambda f: (f["kind"], f["command"]))}
+            "failures": sorted(camp.failures, key=lambda f: (f["kind"], json.dumps(f["replay"], sort_keys=True)))}
 
 
 CHUNK = 5  # episodes per job: few enough to balance the workers, many enough to reuse a loaded library
-
-
-@contextmanager
-def _client(scheduler: str | None):
-    """The Dask client of ``scheduler`` (``SchedulerError`` if none answers there), or None."""
-    if scheduler is None:
-        yield None
-        return
-    from guardian.scheduler import client
-
-    with client(scheduler) as c:
-        yield c
-
-
-def _run_jobs(jobs, workers: int, client, cache):
-    if client is not None:
-        from dask.distributed import as_completed
-
-        futures = {client.submit(_chunk, cell, seeds, cache, pure=False): cell for cell, seeds in jobs}
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()
-        return
-    if workers <= 1:
-        for cell, seeds in jobs:
-            yield cell, _chunk(cell, seeds, cache)
-        return
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(_chunk, cell, seeds, cache): cell for cell, seeds in jobs}
-        for fut in as_completed(futures):
-            yield futures[fut], fut.result()

@@ -3,7 +3,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from envs.highway_overtake import HighwayOvertakeEnv
+from guardian.adapters.highway_env.checks import controlled_vehicles, multi_agent
+from guardian.adapters.highway_env.monitor import ModelMonitor
+from guardian.adapters.highway_env.road import read_road
+from guardian.adapters.highway_env.scene import road_scene
+from guardian.decide.overtake import PointMassGuardian
+from guardian.decide.traffic import TrafficSupervisor
 from guardian.evaluation.episodes import Observer
+from guardian.evaluation.judge import FaultJudge, body_lanes
+from guardian.model.roads import RoadMap
+from intention.estimator import IntentionEstimator
+from intention.models import intention_models, unclip_standstill
+from itha.car_following import CarFollowingParams
 
 COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
           "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
@@ -17,53 +29,51 @@ CAR_COUNTS = ("collisions", "at_fault_collisions", "lane_changes", "override_ste
               "merges", "on_ending_lane")
 
 
-def _multi(base) -> bool:
-    return type(getattr(base, "action_type", None)).__name__ == "MultiAgentAction"
-
-
-def guarded_cars(base) -> list:
-    """The cars a rollout counts: highway-env's controlled cars under ``MultiAgentAction``, else the ego."""
-    return list(base.controlled_vehicles) if _multi(base) else [base.vehicle]
-
-
 class HighwayTally(Observer):
-    """Counts of a highway-env rollout, each by a written rule (see ``result``)."""
+    """Counts of a highway-env rollout, each by a written rule (see ``result``).
 
-    def __init__(self, env, overtake: bool, guardian: bool, recorder=None, library=None, horizon: int = 10):
-        self.overtake, self.guardian, self.recorder = overtake, guardian, recorder
-        self.library, self._aside, self.horizon = library, None, horizon
+    Parameters
+    ----------
+    env : gymnasium.Env
+        The rollout's environment (wrapped in the ``Guardian`` when ``guardian``).
+    guardian : bool
+        The env is guarded.
+    config : GuardianConfig
+        The run's configuration: the bounds the counts are taken with (the guardian's own, or those it
+        would have had).
+    library : intention.library.OvertakeLibrary, optional
+        The overtake sets (an unguarded overtake run's starts are judged by them).
+    recorder : optional
+        Told of every step (``guardian.recording.rerun.GuardianRecorder``).
+    """
+
+    def __init__(self, env, guardian: bool, config, library=None, recorder=None):
+        self.overtake = isinstance(env.unwrapped, HighwayOvertakeEnv)
+        self.guardian, self.config, self.recorder = guardian, config, recorder
+        self.library, self._aside = library, None
         self.estimator = None
-        if overtake:
+        if self.overtake:
             self._watch_the_lead(env)
         self.totals = {k: 0 for k in COUNTS}
         self.totals["crashes"] = []
-        if overtake:
+        if self.overtake:
             self.totals["wrong_identifications"] = 0
         self.identify, self.distance, self.monitor_worst = [], 0.0, {}
         self.per_car = None          # per controlled car (several): CAR_COUNTS and distance
         self.multi = False
 
     def _watch_the_lead(self, env) -> None:
-        from guardian.adapters.highway_env.monitor import ModelMonitor
-        from intention.estimator import IntentionEstimator
-        from intention.models import intention_models
-
         models = intention_models(env.unwrapped.params)
         candidates = {n: models[n] for n in ("aggressive", "cautious")}
-        self.estimator = IntentionEstimator(candidates, horizon=self.horizon)
+        self.estimator = IntentionEstimator(candidates, horizon=self.config.horizon)
         self.monitor = None
         if not self.guardian:  # the guardian's own monitor counts when it is there
-            from guardian.config import GuardianConfig
-
-            g = GuardianConfig()
+            g = self.config
             self.monitor = ModelMonitor(env.unwrapped.params.dt, (-g.traffic_accel, g.traffic_accel), g.v_max,
-                                        env.unwrapped.params, candidates, ego_stops_at_zero=True)
+                                        env.unwrapped.params, candidates, ego_stops_at_zero=True,
+                                        reverse_reach=g.reverse_reach)
 
     def start_episode(self, env, episode, obs) -> None:
-        from guardian.evaluation.judge import FaultJudge
-        from guardian.model.roads import RoadMap
-        from guardian.adapters.highway_env.road import read_road
-
         base = env.unwrapped
         if self.estimator is not None:
             self.estimator.reset()
@@ -74,9 +84,9 @@ class HighwayTally(Observer):
         self.episode, self.t = episode, 0
         self.road = read_road(base)
         self.on_map = isinstance(self.road, RoadMap)
-        self.cars = guarded_cars(base)
+        self.cars = controlled_vehicles(base)
         self.last_blind = [None] * len(self.cars)
-        self.multi = _multi(base)
+        self.multi = multi_agent(base)
         if self.multi and self.per_car is None:
             self.per_car = [dict({k: 0 for k in CAR_COUNTS}, distance=0.0) for _ in self.cars]
         self.x0 = [self._along(v) for v in self.cars]
@@ -85,7 +95,8 @@ class HighwayTally(Observer):
         self.judge = FaultJudge.for_env(base, 1.0 / base.config["policy_frequency"])
         self.judge.start(base, self.cars)
         self.slots = [self._body_slots(v) for v in self.cars] if self.on_map else None
-        self.checkers = None if self.overtake else [_SelfSafetyCheck(base, self.road, v, self.multi) for v in self.cars]
+        self.checkers = None if self.overtake else [_SelfSafetyCheck(base, self.road, v, self.multi, self.config)
+                                                     for v in self.cars]
         self.inside = self._start_inside(env, base)
         self.totals["starts_outside"] += int(not self.inside)
 
@@ -103,17 +114,12 @@ class HighwayTally(Observer):
     def _start_inside(self, env, base) -> bool:
         """The guardian's own test; without it, the same sets' test on a guardian built aside."""
         if self.guardian:
-            return bool(_guardian_of(env).start_inside())
+            return bool(env.get_wrapper_attr("start_inside")())
         if self.overtake:
             if self._aside is None:
-                from guardian.decide.overtake import PointMassGuardian
-                from guardian.config import GuardianConfig
-
                 self._aside = PointMassGuardian(self.library, self.road.n_lanes,
                                                 base.vehicle.WIDTH / 2 / base.config["lateral_scale"],
-                                                int(base.config["traffic_count"]) > 0, GuardianConfig())
-            from guardian.adapters.highway_env.scene import road_scene
-
+                                                int(base.config["traffic_count"]) > 0, self.config)
             return bool(self._aside.inside(base.overtake_state(), road_scene(base, self.road)))
         return all(c.inside(base) for c in self.checkers)
 
@@ -144,17 +150,15 @@ class HighwayTally(Observer):
         for i, (v, r) in enumerate(zip(self.cars, records)):
             if self.on_map:  # entries into slots (the judge's lines are not the guardian's lanes)
                 now = self._body_slots(v)
-                entered = [self.road.itha_lane(k) for k in now - self.slots[i]]
+                entered = [self.road.numbering.itha(k) for k in now - self.slots[i]]
                 self.slots[i] = now
             else:
-                entered = [self.road.itha_lane(lane) for _, lane in self.judge.car_entries[i][entries_before[i]:]]
+                entered = [self.road.numbering.itha(lane) for _, lane in self.judge.car_entries[i][entries_before[i]:]]
             if r is not None:
                 held = set(r["lanes"]) | set(r["entered"])
                 totals["unchecked_entries"] += sum(lane not in held for lane in entered)
             totals["reversing_steps"] += int(v.speed < -1e-9)
         if self.overtake:
-            from intention.models import unclip_standstill
-
             tr = base.last_transition
             self.estimator.update(tr["state"], tr["input"], unclip_standstill(base.params, tr["state"], tr["input"],
                                                                               tr["next_state"]))
@@ -212,7 +216,7 @@ class HighwayTally(Observer):
                 self.per_car[i]["merges"] += int(merged)
                 self.per_car[i]["on_ending_lane"] += int(self.began_ending[i])
         if self.guardian:
-            for car in _guardian_of(env).cars:
+            for car in env.get_wrapper_attr("cars"):
                 for k, v in car.monitor.worst.items():
                     self.monitor_worst[k] = max(self.monitor_worst.get(k, 0.0), v)
 
@@ -236,7 +240,7 @@ class HighwayTally(Observer):
           self-safe input left (highway-env roads; per guarded car), with or without the guardian.
         * ``unchecked_entries``: lanes a guarded car's body began to overlap in a step whose record lists the
           lane neither among the lanes the guardian held the car in at the step's start nor among the
-          entries it checked and found responsible during the step (``guardian.wrappers.guardian.allowed_lanes``; on
+          entries it checked and found responsible during the step (``guardian.wrappers.record.allowed_lanes``; on
           roads beyond one straight segment: slots of ``guardian.model.roads``, the body unwidened).
         * ``traffic_blind_steps``: policy steps in which some traffic car did not see a guarded car its
           model has it react to (``guardian.adapters.highway_env.blindness.traffic_blind_to``: highway-env's v0 roads search one
@@ -287,33 +291,25 @@ class _SelfSafetyCheck:
     """Whether a guarded car has a self-safe input (7.4) towards the cars ahead in its lanes (and, on a
     ``RoadMap``, its lane's end)."""
 
-    def __init__(self, base, road, car=None, multi: bool = False):
-        from guardian.config import GuardianConfig
-        from guardian.decide.traffic import TrafficSupervisor
-        from itha.car_following import CarFollowingParams
-
-        c = GuardianConfig()
+    def __init__(self, base, road, car, multi: bool, config):
+        c = config
         self.dt = 1.0 / base.config["simulation_frequency"]
         self.road, self.accel, self.reverse_reach = road, c.traffic_accel, c.reverse_reach
         self.car = base.vehicle if car is None else car
-        self.guarded = frozenset(id(v) for v in guarded_cars(base)) if multi else frozenset()
+        self.guarded = frozenset(id(v) for v in controlled_vehicles(base)) if multi else frozenset()
         self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
                                                             u_min=-c.traffic_accel, u_max=c.traffic_accel,
                                                             d_min=-c.traffic_accel, d_max=c.traffic_accel),
                                          wreck_margin=c.wreck_margin)
 
     def inside(self, base) -> bool:
-        from guardian.evaluation.judge import body_lanes
-        from guardian.model.roads import RoadMap
-        from guardian.adapters.highway_env.scene import road_scene
-
         ego = self.car
         if isinstance(self.road, RoadMap):
             lanes = self.road.body_slots(float(ego.position[0]), float(ego.position[1]), float(ego.heading),
                                          ego.LENGTH, ego.WIDTH) or {self.road.slot_of(ego.lane_index)}
         else:
             lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
-        scene = road_scene(base, self.road, {self.road.itha_lane(i) for i in lanes}, ego=ego, guarded=self.guarded,
+        scene = road_scene(base, self.road, self.road.numbering.itha_set(lanes), ego=ego, guarded=self.guarded,
                            reverse_reach=self.reverse_reach)
         speeds, _ = self.traffic.self_safe_speeds(scene)
         v, reach = float(ego.speed), self.accel * self.dt
@@ -335,11 +331,3 @@ def _count_step(totals: dict, g: dict | None) -> None:
     for k in ("follower_dropped_steps", "conflict_steps", "failsafe_steps", "unsupervised_steps"):
         totals[k] += g[k]
 
-
-def _guardian_of(env):
-    """The ``Guardian`` inside a stack of wrappers."""
-    from guardian.wrappers.guardian import Guardian
-
-    while not isinstance(env, Guardian):
-        env = env.env
-    return env

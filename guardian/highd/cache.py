@@ -7,7 +7,7 @@ as one ``.npy`` file per array beside ``entry.json``; only a recording that pass
 stored, so an entry is clean by construction. A repeated replay reads the arrays (no zip archive's
 CRC pass, no decoding: ~0.01 s per 22-minute recording).
 
-Why the view and not the parsed tables (Parquet, as issue 12 first asked): measured on the
+Why the view and not the parsed tables (as Parquet): measured on the
 60-recording benchmark, writing each recording's tables as Parquet cost 8 s of a 28 s first run,
 and the tables saved a parse only when ``convert.py`` changed while the reader did not; the view
 as Parquet (lz4) reads 3.5 times slower than ``.npy`` (0.031 against 0.009 s per recording), which
@@ -40,7 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from guardian.highd.convert import ITHAData, LaneChange, to_itha
-from guardian.highd.reader import read_recording, recording_files
+from guardian.highd.files import recording_files
+from guardian.highd.reader import read_recording
 from guardian.highd.schema import FILES, file_name
 
 _CODE_FILES = ("reader.py", "numeric_csv.py", "schema.py", "convert.py", "cache.py")

@@ -9,7 +9,6 @@ on the other carriageway. Nothing is dropped, clipped or guessed.
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,10 +16,10 @@ import numpy as np
 import pandas as pd
 
 from guardian.errors import HighDFormatError
+from guardian.highd.files import recording_files
 from guardian.highd.numeric_csv import read_numeric_csv
 from guardian.highd.schema import FILES, FLOAT, INT, META_FORMATS, PLAUSIBILITY, STR, file_name
 
-FILE_PATTERN = re.compile(r"^(\d+)_(recordingMeta|tracksMeta|tracks)\.csv$")
 
 
 @dataclass
@@ -44,42 +43,6 @@ class Recording:
         if direction == 1:
             return list(range(2, n_up + 2))
         return list(range(n_up + 3, n_up + n_low + 3))
-
-
-def recording_files(folder: Path) -> dict[int, dict[str, Path]]:
-    """``{id: {kind: path}}`` of a folder's HighD files; the id is the number before ``_`` (``1_`` = ``01_``).
-
-    Two files of the same recording and kind (``1_tracks.csv`` and ``01_tracks.csv``) are refused,
-    naming both: reading either would silently drop the other, reading both would count it twice.
-    """
-    found: dict[int, dict[str, Path]] = {}
-    for p in sorted(Path(folder).iterdir()):
-        m = FILE_PATTERN.match(p.name)
-        if not m:
-            continue
-        rid, kind = int(m.group(1)), m.group(2)
-        other = found.setdefault(rid, {}).get(kind)
-        if other is not None:
-            raise HighDFormatError(f"{folder}: {other.name} and {p.name} are both recording {rid}'s {kind}; "
-                                   f"keep one")
-        found[rid][kind] = p
-    return found
-
-
-def recording_ids(path: Path) -> list[int]:
-    """Recording ids in a folder (from ``NN_recordingMeta.csv``), or of the one recording a file names."""
-    path = Path(path)
-    if path.is_file():
-        m = re.match(r"^(\d+)_", path.name)
-        if not m:
-            raise HighDFormatError(f"{path}: not a HighD file name (NN_recordingMeta.csv, NN_tracks.csv, ...)")
-        return [int(m.group(1))]
-    if not path.is_dir():
-        raise HighDFormatError(f"{path}: no such file or folder")
-    ids = sorted(rid for rid, kinds in recording_files(path).items() if "recordingMeta" in kinds)
-    if not ids:
-        raise HighDFormatError(f"{path}: no NN_recordingMeta.csv in this folder")
-    return ids
 
 
 def _line(path: Path, row_index) -> int:
@@ -167,8 +130,8 @@ def _read_clean_csv(path: Path, schema: dict) -> pd.DataFrame | None:
     schema's type (strings checked as UTF-8, numbers are ASCII), and no value is missing. Anything
     else (a bad value or byte, a short row, an empty field, a stray quote, a BOM, an empty file)
     returns None and the caller runs the byte check and pandas' reader, whose messages, and the
-    locators after them, name the line and column exactly as before. So a clean file is read fast
-    and a dirty one is reported exactly as it always was.
+    locators after them, name the line and column. So a clean file is read fast and a dirty one is
+    reported by the careful path.
     """
     import pyarrow as pa
     import pyarrow.csv as pcsv

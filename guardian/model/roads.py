@@ -36,6 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from guardian.model.body import half_extents
+from guardian.model.lanes import LaneNumbering
+from guardian.model.scene import Car
+
 
 @dataclass(frozen=True)
 class Road:
@@ -44,9 +48,10 @@ class Road:
     n_lanes: int
     lane_width: float
 
-    def itha_lane(self, lane_id: int) -> int:
-        """ITHA lane number (1 = rightmost) of highway-env lane id ``lane_id`` (0 = leftmost)."""
-        return self.n_lanes - lane_id
+    @property
+    def numbering(self) -> LaneNumbering:
+        """Lane ids (0 = leftmost) and ITHA lanes (1 = rightmost)."""
+        return LaneNumbering(self.n_lanes)
 
 
 
@@ -138,7 +143,7 @@ class RoadMap:
     spans : tuple
         Per slot, the x-intervals ``((lo, hi), ...)`` where it is a corridor lane (``±inf``: open).
     branches : tuple of Strip
-    lanes : tuple
+    lane_table : tuple
         ``((highway-env lane index, slot, branch number or -1), ...)``.
     ends : tuple
         ``((slot, s), ...)``: dead ends (a standing obstacle of length 0 at ``s``).
@@ -149,13 +154,14 @@ class RoadMap:
     y0: float
     spans: tuple
     branches: tuple
-    lanes: tuple
+    lane_table: tuple
     ends: tuple
 
     # ---- lanes ----------------------------------------------------------------------------------------
-    def itha_lane(self, slot: int) -> int:
-        """ITHA lane number (1 = rightmost) of slot ``slot`` (0 = leftmost)."""
-        return self.n_lanes - slot
+    @property
+    def numbering(self) -> LaneNumbering:
+        """Slots (0 = leftmost) and ITHA lanes (1 = rightmost)."""
+        return LaneNumbering(self.n_lanes)
 
     def slot_y(self, slot: int) -> float:
         return self.y0 + slot * self.lane_width
@@ -163,7 +169,7 @@ class RoadMap:
     def _lane_table(self) -> dict:
         table = self.__dict__.get("_table")
         if table is None:
-            table = {index: (slot, branch) for index, slot, branch in self.lanes}
+            table = {index: (slot, branch) for index, slot, branch in self.lane_table}
             object.__setattr__(self, "_table", table)
         return table
 
@@ -211,10 +217,8 @@ class RoadMap:
     def end_cars(self) -> tuple:
         """Each dead end as a standing car of length 0 at the end, in its slot's ITHA lane: a car there must
         stop before the end or leave the lane (self-safety (7.4) towards it)."""
-        from guardian.model.scene import Car
-
-        return tuple(Car(float(s), 0.0, frozenset({self.itha_lane(k)}), 0.0, f"the end of lane {self.itha_lane(k)}",
-                         fixed=True)
+        lanes = self.numbering
+        return tuple(Car(float(s), 0.0, frozenset({lanes.itha(k)}), 0.0, f"the end of lane {lanes.itha(k)}", fixed=True)
                      for k, s in self.ends)
 
     # ---- bodies ---------------------------------------------------------------------------------------
@@ -264,9 +268,8 @@ class RoadMap:
 
     def _one_body_slots(self, x, y, h, length, width, margin, dx, dy) -> frozenset:
         """``_body_slots`` for one body, in floats (the same operations in the same order)."""
-        c, s = abs(math.cos(h)), abs(math.sin(h))
-        ry = length / 2 * s + width / 2 * c + margin
-        rx = length / 2 * c + width / 2 * s + margin
+        rx, ry = half_extents(length, width, h)
+        rx, ry = rx + margin, ry + margin
         ylo, yhi = y - ry + min(dy, 0.0), y + ry + max(dy, 0.0)
         xlo, xhi = x - rx + min(dx, 0.0), x + rx + max(dx, 0.0)
         half = self.lane_width / 2
@@ -280,9 +283,8 @@ class RoadMap:
             if strip.slot in out:
                 continue
             sl, r = (float(v) for v in strip.local(x, y))
-            rel = h - float(strip.heading_at(sl))
-            rr = length / 2 * abs(math.sin(rel)) + width / 2 * abs(math.cos(rel)) + margin + sweep
-            rs = length / 2 * abs(math.cos(rel)) + width / 2 * abs(math.sin(rel)) + margin + sweep
+            rs, rr = half_extents(length, width, h - float(strip.heading_at(sl)))
+            rs, rr = rs + margin + sweep, rr + margin + sweep
             lo, hi = strip.s_limits()
             if r - rr < strip.width / 2 and r + rr > -strip.width / 2 and sl + rs > lo and sl - rs < hi:
                 out.add(strip.slot)
@@ -291,9 +293,8 @@ class RoadMap:
     def _body_slots(self, x, y, heading, length, width, margin, dx, dy) -> frozenset:
         x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
         dx, dy = np.broadcast_to(np.asarray(dx, float), x.shape), np.broadcast_to(np.asarray(dy, float), x.shape)
-        c, s = np.abs(np.cos(h)), np.abs(np.sin(h))
-        ry = length / 2 * s + width / 2 * c + margin
-        rx = length / 2 * c + width / 2 * s + margin
+        rx, ry = half_extents(length, width, h)
+        rx, ry = rx + margin, ry + margin
         ylo, yhi = y - ry + np.minimum(dy, 0.0), y + ry + np.maximum(dy, 0.0)
         xlo, xhi = x - rx + np.minimum(dx, 0.0), x + rx + np.maximum(dx, 0.0)
         half = self.lane_width / 2
@@ -313,9 +314,8 @@ class RoadMap:
             if strip.slot in out:
                 continue
             sl, r = strip.local(x, y)
-            rel = h - strip.heading_at(sl)
-            rr = length / 2 * np.abs(np.sin(rel)) + width / 2 * np.abs(np.cos(rel)) + margin + sweep
-            rs = length / 2 * np.abs(np.cos(rel)) + width / 2 * np.abs(np.sin(rel)) + margin + sweep
+            rs, rr = half_extents(length, width, h - strip.heading_at(sl))
+            rs, rr = rs + margin + sweep, rr + margin + sweep
             lo, hi = strip.s_limits()
             hit = (r - rr < strip.width / 2) & (r + rr > -strip.width / 2) & (sl + rs > lo) & (sl - rs < hi)
             if hit.any():

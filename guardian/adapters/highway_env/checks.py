@@ -127,3 +127,53 @@ def merge_limits(env_class, env_name: str, continuous: bool, multi_agent: bool) 
         raise ConfigError(MERGE_NOTE.format(env=env_name, what="fails with ContinuousAction"))
     if multi_agent and (one_ego(env_class) or discrete_reward(env_class)):
         raise ConfigError(MERGE_NOTE.format(env=env_name, what="has one controlled car"))
+
+
+# ---- an env's action type, as the guardian supervises it -----------------------------------------------------
+ACTION_TYPES = ("ContinuousAction", "DiscreteAction", "DiscreteMetaAction")
+META_ACTIONS = ["LANE_LEFT", "IDLE", "LANE_RIGHT", "FASTER", "SLOWER"]
+
+
+def multi_agent(base) -> bool:
+    """Does the env control several cars (highway-env's ``MultiAgentAction``)?"""
+    return type(getattr(base, "action_type", None)).__name__ == "MultiAgentAction"
+
+
+def controlled_action_types(base) -> list:
+    """The action type of each supervised car (one, or each agent's of a ``MultiAgentAction``)."""
+    if multi_agent(base):
+        return list(base.action_type.agents_action_types)
+    return [base.action_type]
+
+
+def controlled_vehicles(base) -> list:
+    """The guarded cars: highway-env's controlled cars under ``MultiAgentAction``, else the ego."""
+    return list(base.controlled_vehicles) if multi_agent(base) else [base.vehicle]
+
+
+def action_kind(base) -> str:
+    """``DiscreteMetaAction`` or ``ContinuousAction`` (highway-env's ``DiscreteAction`` is a grid of the
+    latter; either may control one axis only, the env then holds the other at 0); a ConfigError for an
+    action type the guardian cannot supervise."""
+    kinds = set()
+    for at in controlled_action_types(base):
+        kind = type(at).__name__
+        if kind not in ACTION_TYPES:
+            raise ConfigError(f"Guardian: config 'action.type' {kind!r} cannot be supervised; use one of {ACTION_TYPES}"
+                              " (or MultiAgentAction of one of them)")
+        if kind == "DiscreteMetaAction" and list(at.actions.values()) != META_ACTIONS:
+            raise ConfigError("Guardian: config 'action' must offer all five meta actions "
+                              "('longitudinal' and 'lateral' true)")
+        kinds.add("DiscreteMetaAction" if kind == "DiscreteMetaAction" else "ContinuousAction")
+    if len(kinds) != 1:
+        raise ConfigError("Guardian: every controlled car must have the same action type")
+    return kinds.pop()
+
+
+def check_env(base) -> str:
+    """Refuse an env the guardian cannot supervise (its config, its action type); the action kind."""
+    kind = action_kind(base)
+    name = base.spec.id if base.spec is not None else type(base).__name__
+    check_config(type(base).default_config(), base.config, f"Guardian: {name}")
+    merge_limits(type(base), name, kind == "ContinuousAction", multi_agent(base))
+    return kind

@@ -6,13 +6,13 @@ It turns simulator objects into the plain values the decision objects take (``gu
 from __future__ import annotations
 
 import functools
-import math
 
 from highway_env.vehicle.controller import ControlledVehicle
 
 from guardian.adapters.highway_env.blindness import blind_to, ego_probes
 from guardian.config import REVERSE_REACH
-from guardian.decide.kinematics import BicycleEgo, _lanes_overlapped
+from guardian.decide.kinematics import BicycleEgo
+from guardian.model.body import half_extents, lanes_overlapped
 from guardian.model.reversing import lengthen_reversing
 from guardian.model.roads import Road, RoadMap
 from guardian.model.scene import Car, EgoState, Scene
@@ -26,7 +26,8 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
     whose scene this is (default: the env's ego); ``guarded`` are the ids of every guarded car (they
     announce, ``Car.announces``). On a ``RoadMap``, and with several guarded cars, every car also occupies
     the lanes its body overlaps (widened as the guardian widens its own: a slow car turning out of a lane
-    reaches back into it); with one guarded car on the straight road the scene is what it always was;
+    reaches back into it); with one guarded car on the straight road a car occupies its lane and its
+    target lane only (highway-env's lane indices);
     ``announced`` maps a guarded car's id to the ITHA lanes it announced it enters this step. On a
     ``RoadMap`` fronts are along the lanes' chains, obstacles are standing cars and each dead end is a
     standing car of length 0 (``guardian.model.roads``).
@@ -40,21 +41,22 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
     if isinstance(road, RoadMap):
         return _map_scene(base, road, ego, ego_lanes, guarded, announced, reverse_reach)
     lead = getattr(base, "lead", None)
+    lanes_of = road.numbering
     others, own = [], []
     for k, veh in enumerate(base.road.vehicles):
         if veh is ego or veh is lead:
             continue
         lane = veh.lane_index[2]
         target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
-        lanes = _itha_lanes(road.n_lanes, lane, target)
+        lanes = _itha_pair(lanes_of, lane, target)
         if guarded:
-            lanes = lanes | frozenset(road.n_lanes - j for j in _straight_body_lanes(veh, road))
+            lanes = lanes | lanes_of.itha_set(_straight_body_lanes(veh, road))
             lanes = lanes | announced.get(id(veh), frozenset())
         if veh.speed < 0:
             lanes = lanes | frozenset(j + s for j in lanes for s in (-1, 1) if 1 <= j + s <= road.n_lanes)
         others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, veh.LENGTH, f"car {k}",
                           id(veh) in guarded, bool(veh.crashed)))
-        own.append(road.n_lanes - lane)
+        own.append(lanes_of.itha(lane))
     others = lengthen_reversing(others, own, reverse_reach)
     me = Car(float(ego.position[0]) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego",
              id(ego) in guarded)
@@ -63,12 +65,13 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
 
 def _straight_body_lanes(veh, road: Road) -> frozenset:
     """Lane ids a body overlaps on the straight road (widened as the guardian widens its own)."""
-    h = float(veh.heading)
-    r = veh.LENGTH / 2 * abs(math.sin(h)) + veh.WIDTH / 2 * abs(math.cos(h)) + BicycleEgo.LATERAL_MARGIN
+    r = half_extents(veh.LENGTH, veh.WIDTH, float(veh.heading))[1] + BicycleEgo.LATERAL_MARGIN
     y = float(veh.position[1])
-    return _lanes_overlapped(y - r, y + r, road.n_lanes, road.lane_width)
+    return lanes_overlapped(y - r, y + r, road.n_lanes, road.lane_width)
+
 
 def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_reach: float) -> Scene:
+    lanes_of = road.numbering
     others, own = [], []
     ego_front = road.longitudinal(ego.lane_index, float(ego.position[0]), float(ego.position[1])) + ego.LENGTH / 2
     probes = ego_probes(base, ego)
@@ -81,11 +84,11 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_
         # blind: it may change into a lane beside it in front of the ego unseen; reversing: its body swings
         if (blind and front >= ego_front) or reversing:
             slots = slots | {road.slot_of(side) for side in base.road.network.side_lanes(veh.lane_index)}
-            lanes = frozenset(road.itha_lane(j) for j in slots)
+            lanes = lanes_of.itha_set(slots)
         lanes = lanes | announced.get(id(veh), frozenset())
         others.append(Car(front, float(veh.speed), lanes, veh.LENGTH, f"car {k}", id(veh) in guarded,
                           bool(veh.crashed), blind=blind))
-        own.append(road.itha_lane(road.slot_of(veh.lane_index)))
+        own.append(lanes_of.itha(road.slot_of(veh.lane_index)))
     others = lengthen_reversing(others, own, reverse_reach)
     for k, obj in enumerate(base.road.objects):
         if not (getattr(obj, "solid", True) and getattr(obj, "collidable", True)):
@@ -96,10 +99,11 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_
             index = road.memo(("object lane", x, y, float(obj.heading)),
                               lambda: base.road.network.get_closest_lane_index(obj.position, obj.heading))
             others.append(Car(road.longitudinal(index, x, y) + obj.LENGTH / 2, 0.0,
-                              frozenset(road.itha_lane(j) for j in slots), obj.LENGTH, f"obstacle {k}", fixed=True))
+                              lanes_of.itha_set(slots), obj.LENGTH, f"obstacle {k}", fixed=True))
     others.extend(road.end_cars())
     me = Car(ego_front, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego", id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
+
 
 def _vehicle_reading(road: RoadMap, veh) -> tuple:
     """A traffic car on the map: its front along its lane's chain, the slots its body (widened as the
@@ -114,7 +118,7 @@ def _vehicle_reading(road: RoadMap, veh) -> tuple:
         if target is not None:
             slots.add(road.slot_of(target))
         front = road.longitudinal(veh.lane_index, x, y) + veh.LENGTH / 2
-        return front, frozenset(slots), frozenset(road.itha_lane(j) for j in slots)
+        return front, frozenset(slots), road.numbering.itha_set(slots)
 
     return road.memo(("vehicle", x, y, heading, veh.LENGTH, veh.WIDTH, tuple(veh.lane_index),
                       None if target is None else tuple(target)), read)
@@ -140,5 +144,5 @@ def _is_controlled(vehicle_type) -> bool:
 
 
 @functools.lru_cache(maxsize=None)
-def _itha_lanes(n_lanes: int, lane: int, target: int) -> frozenset:
-    return frozenset({n_lanes - lane, n_lanes - target})
+def _itha_pair(numbering, lane: int, target: int) -> frozenset:
+    return numbering.itha_set({lane, target})
