@@ -26,7 +26,7 @@ test alone would disagree with it just outside the boundary. Hence three cases:
 
 * inside the exact interval: feasible (HiGHS finds the same point);
 * more than ``LP_BAND`` (1e-6) outside: infeasible (beyond any tolerance HiGHS
-  applies here; ``tests/test_estimator.py`` measures HiGHS' threshold on each
+  applies here; ``tests/intention/test_estimator.py`` measures HiGHS' threshold on each
   row and side);
 * in between: the window LP decides, exactly as before (one HiGHS model per
   thread and model shape, shared by every estimator, solved from a cleared

@@ -19,7 +19,7 @@ def next_lead_speed_bounds(model: IntentionModel, lo, hi) -> tuple[np.ndarray, n
     state whose range over a box is exact; the lead's own speed then appears once per term, which
     keeps the bounds tight under repetition. A box that meets several zones of ``h`` takes the hull of
     their policies. The bounded-velocity model gives ``[v_L^min, v_L^max]``. The bounds contain every
-    ``v_L+`` the closed-loop ``PWASystem`` reaches from the box (``tests/test_lead_following.py``).
+    ``v_L+`` the closed-loop ``PWASystem`` reaches from the box (``tests/guardian/decide/test_lead_following.py``).
     """
     p = model.params
     lo, hi = np.atleast_2d(np.asarray(lo, float)), np.atleast_2d(np.asarray(hi, float))

@@ -29,7 +29,7 @@ extension is inclusion-monotone, so every state of a box that passes passes from
 decided is exactly the one the argument above is about. Run-time next speeds are the union of the
 one-step ``F_R`` speeds for the leads of ``M`` and the next-speed ranges of a grid of accelerations
 whose boxes pass; the grid holds ``a_ex^min``, so a state decided inside always has an input
-(``tests/test_lead_following.py`` falsifies all of it).
+(``tests/guardian/decide/test_lead_following.py`` falsifies all of it).
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ anything is parsed), answer a request in the same event-loop turn its last byte 
 client that half-closes its socket after a request still gets the answer), and stay cheap (the
 parse is a few microseconds; a step is ~0.2 ms).
 
-What it accepts is a strict subset of what h11 accepts (``tests/test_service_http.py`` runs both on
+What it accepts is a strict subset of what h11 accepts (``tests/guardian/service/test_service_http.py`` runs both on
 the same fuzzed bytes): one request line ``METHOD SP TARGET SP HTTP/1.x``, header fields
 ``name: value`` (no space before the colon, no obsolete line folding, no control characters), lines
 ending in CRLF or LF, one ``Host`` on HTTP/1.1, ``Content-Length`` (digits; repeated only with the

@@ -3,7 +3,7 @@
 Written out here rather than derived from the routes, so that it can say everything the service
 answers: each operation lists every status it can give, with the body's schema, including the
 answers of the request reader and of the checks before any route (framing 400/414/431, 408, 401
-token, 403 Host/Origin, 413, 415, 503 connection limit, ...). ``tests/test_service_contract.py``
+token, 403 Host/Origin, 413, 415, 503 connection limit, ...). ``tests/guardian/service/test_service_contract.py``
 sends requests that produce each answer and validates every response against this document with
 openapi-core, and the document itself with openapi-spec-validator. ``/docs`` is static HTML rendered
 from the document: no script, no stylesheet from elsewhere, so it works offline.

@@ -1,0 +1,205 @@
+"""Conversion to ITHA data, calibration and override counting; workers and Dask give identical results."""
+import math
+
+import numpy as np
+import pytest
+
+from guardian.highd.convert import to_itha
+from guardian.highd.generate import TrafficParams, generate
+from guardian.highd.reader import read_recording
+from guardian.highd.rates import ReplayConfig, car_following_params, order_statistic_bounds, self_safety_overrides
+from guardian.highd.replay import default_sample, replay
+from itha.car_following import _headway_floor_arrays, headway_floor
+from project import SHARED_DATA
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    out = tmp_path_factory.mktemp("highd-replay")
+    generate(out, 2, 0.5, seed=5, prm=TrafficParams(warmup=30.0, inflow=0.45))
+    return out
+
+
+def test_local_states_from_boxes_in_both_directions(folder):
+    rec = read_recording(folder, 1)
+    data = to_itha(rec)
+    t = rec.tracks.set_index(["id", "frame"])
+    lead = np.isfinite(data.h)
+    assert lead.any() and (~lead).any()
+    for k in np.flatnonzero(lead)[:300]:
+        row = t.loc[(data.vehicle[k], data.frame[k])]
+        L = t.loc[(int(row["precedingId"]), data.frame[k])]
+        # dhw is front to front; the bumper gap subtracts the lead's length
+        assert data.h[k] == pytest.approx(row["dhw"] - L["width"], abs=0.03)
+        assert data.vL[k] == pytest.approx(abs(L["xVelocity"]))
+        assert data.v[k] == pytest.approx(abs(row["xVelocity"]))
+    assert set(np.unique(data.direction)) == {1, 2}
+    assert (data.v >= 0).all() and set(np.unique(data.lane)) <= {1, 2, 3}
+
+
+def test_inputs_and_disturbances_are_forward_differences(folder):
+    rec = read_recording(folder, 1)
+    data = to_itha(rec)
+    t = rec.tracks.set_index(["id", "frame"])
+    k = int(np.flatnonzero(np.isfinite(data.d))[10])
+    now, nxt = t.loc[(data.vehicle[k], data.frame[k])], t.loc[(data.vehicle[k], data.frame[k] + 1)]
+    assert data.u[k] == pytest.approx((abs(nxt["xVelocity"]) - abs(now["xVelocity"])) * 25)
+    L0 = t.loc[(int(now["precedingId"]), data.frame[k])]
+    L1 = t.loc[(int(now["precedingId"]), data.frame[k] + 1)]
+    assert data.d[k] == pytest.approx((abs(L1["xVelocity"]) - abs(L0["xVelocity"])) * 25)
+    # a lane change is an event with a snapshot of its direction
+    assert data.lane_changes
+    e = data.lane_changes[0]
+    assert e.lane[e.ego] + (1 if e.trigger == "left" else -1) in (1, 2, 3)
+    assert len(e.p) == len(e.v) == len(e.lane) == len(e.length) > 1
+
+
+ID_COLUMNS = ("id", "precedingId", "followingId", "leftPrecedingId", "leftAlongsideId", "leftFollowingId",
+              "rightPrecedingId", "rightAlongsideId", "rightFollowingId")
+
+
+def _copy_recording(folder, out, tracks=lambda t: t, tracks_meta=lambda m: m):
+    import shutil
+
+    import pandas as pd
+
+    out.mkdir()
+    shutil.copy(folder / "01_recordingMeta.csv", out / "01_recordingMeta.csv")
+    tracks(pd.read_csv(folder / "01_tracks.csv")).to_csv(out / "01_tracks.csv", index=False)
+    tracks_meta(pd.read_csv(folder / "01_tracksMeta.csv")).to_csv(out / "01_tracksMeta.csv", index=False)
+    return out
+
+
+def _same_itha(a, b, vehicle=lambda v: v) -> None:
+    for k in ("frame", "direction", "lane", "v", "h", "vL", "u", "d"):
+        assert getattr(a, k).tobytes() == getattr(b, k).tobytes(), k
+    assert np.array_equal(vehicle(a.vehicle), b.vehicle)
+    assert [(vehicle(np.array([e.vehicle]))[0], e.frame, e.trigger) for e in a.lane_changes] == \
+        [(e.vehicle, e.frame, e.trigger) for e in b.lane_changes]
+
+
+def test_conversion_does_not_depend_on_row_order_or_id_numbering(folder, tmp_path):
+    """HighD files come sorted by (id, frame) with ids 1..N, which the fast paths use (no sort, a dense
+    id table); shuffled rows and ids spread over 10^12 take the general paths and must agree."""
+    original = to_itha(read_recording(folder, 1))
+    rng = np.random.default_rng(4)
+    shuffled = _copy_recording(folder, tmp_path / "shuffled",
+                               tracks=lambda t: t.iloc[rng.permutation(len(t))],
+                               tracks_meta=lambda m: m.iloc[rng.permutation(len(m))])
+    _same_itha(original, to_itha(read_recording(shuffled, 1)))
+
+    def spread(v):
+        return np.where(v != 0, v * 1_000_003_001 + 7, 0)
+
+    def respread(t):
+        return t.assign(**{c: spread(t[c].to_numpy()) for c in ID_COLUMNS if c in t})
+
+    wide = _copy_recording(folder, tmp_path / "wide", tracks=respread,
+                           tracks_meta=lambda m: respread(m).iloc[rng.permutation(len(m))])
+    _same_itha(original, to_itha(read_recording(wide, 1)), vehicle=spread)
+
+
+def test_positions_finds_each_id_or_says_absent():
+    """``reader.positions`` against a dict, through the dense table and through the sorted search."""
+    from guardian.highd.reader import positions
+
+    rng = np.random.default_rng(6)
+    for keys in (rng.permutation(np.arange(1, 500)), rng.choice(10 ** 12, 500, replace=False) - 10 ** 11):
+        query = np.concatenate([rng.choice(keys, 2000), rng.integers(-10 ** 12, 10 ** 12, 50), [-1, 0, 10 ** 15]])
+        index = {int(k): i for i, k in enumerate(keys)}
+        assert positions(keys, query).tolist() == [index.get(int(q), -1) for q in query]
+
+
+def test_order_statistics_follow_the_dissertation():
+    d = np.arange(1, 41, dtype=float)  # N = 40: ⌈0.025 N⌉ = 1, ⌈0.975 N⌉ = 39
+    assert order_statistic_bounds(d, (0.025, 0.975)) == (1.0, 39.0)
+    with pytest.raises(ValueError, match="no lead-disturbance samples"):
+        order_statistic_bounds(np.array([]), (0.025, 0.975))
+
+
+def test_self_safety_override_cases():
+    p = car_following_params(ReplayConfig(), 0.04, (-0.5, 0.5))
+    over = self_safety_overrides(p, v=[30, 30, 30, 30, 30], h=[3, 100, math.inf, math.inf, 100],
+                                 vL=[20, 30, np.nan, np.nan, 30], u=[0, 0, 0, 9.0, -7.0])
+    # closing fast at 3 m; comfortable; free road; free road but u > u_max; u < u_min
+    assert over.tolist() == [True, False, False, True, True]
+
+
+def _self_safety_arrays(p, v, h, vL, u):
+    """(7.4) as array expressions: the referee of the compiled check."""
+    v_next = v + p.dt * u
+    ok = (u >= p.u_min) & (u <= p.u_max) & (v_next >= 0) & (v_next <= p.v_max)
+    lead = np.isfinite(h)
+    h_next = np.where(lead, h + p.dt * (np.nan_to_num(vL) - v), 0.0)
+    vL_next = np.where(lead, np.maximum(np.nan_to_num(vL) + p.dt * p.d_min, 0.0), 0.0)
+    inside = _headway_floor_arrays(p, np.clip(v_next, 0, p.v_max), h_next, np.clip(vL_next, 0, p.v_max)) >= p.h_min
+    ok &= np.where(lead, inside & (np.nan_to_num(vL) <= p.v_max), True)
+    return ~ok
+
+
+def test_the_compiled_self_safety_check_is_the_array_expression():
+    """On states near C's boundary (the headway set a little either side of the floor after one step),
+    inputs at and beyond U's ends, free roads and leads above v_max."""
+    p = car_following_params(ReplayConfig(), 0.04, (-0.5, 0.5))
+    rng = np.random.default_rng(12)
+    n = 400_000
+    v, vL = rng.uniform(0, p.v_max, n), rng.uniform(0, p.v_max, n)
+    u = rng.uniform(p.u_min - 1, p.u_max + 1, n)
+    u[::9], u[1::9] = p.u_min, p.u_max
+    h = headway_floor(p, v, np.zeros(n), vL) * -1 + p.h_min + rng.normal(0, 0.5, n)
+    h[::6], vL[::6] = np.inf, np.nan
+    vL[1::11] = p.v_max + 1
+    got = self_safety_overrides(p, v, h, vL, u)
+    assert np.array_equal(got, _self_safety_arrays(p, v, h, vL, u))
+    assert 0.05 < got.mean() < 0.95  # both answers are exercised
+
+
+def test_replay_contract_and_rates(folder):
+    r = replay(folder, ReplayConfig(seed=1), contexts=True, sensitivity=True)
+    for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
+        assert key in r
+    lo, hi = r["disturbance_bounds"]
+    assert lo < 0 < hi
+    for v in r["override_rates"].values():
+        assert 0.0 <= v <= 1.0
+    assert r["override_rates"]["responsibility_trivial"] >= r["override_rates"]["responsibility_ordered"]
+    assert "by_context" in r["contexts"] and len(r["sensitivity"]) >= 10
+
+
+def test_workers_and_dask_give_identical_results(folder):
+    base = replay(folder, ReplayConfig(seed=2))
+    two = replay(folder, ReplayConfig(seed=2), workers=2)
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=1, processes=False, dashboard_address=None) as cluster:
+        dsk = replay(folder, ReplayConfig(seed=2), scheduler=cluster.scheduler_address)
+    for other in (two, dsk):
+        for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
+            assert other[key] == base[key]
+
+
+def test_shipped_sample_is_the_default():
+    assert (default_sample() / "01_tracks.csv").exists()
+    r = replay(None)
+    assert len(r["recordings"]) == 1 and r["data_points"] > 10_000
+
+
+def test_speed_above_v_max_is_refused(folder):
+    with pytest.raises(ValueError, match=r"above v_max = 10\.0"):
+        replay(folder, ReplayConfig(v_max=10.0))
+
+
+def test_rerun_of_real_data_has_per_vehicle_series_and_a_blueprint(tmp_path):
+
+    from rerun.chunk import RrdReader
+
+    from guardian.cli import main
+    from guardian.recording.rerun import read_entities
+
+    folder = SHARED_DATA / "i80_sample"
+    rrd = tmp_path / "i80.rrd"
+    assert main(["replay", str(folder), "--rerun", str(rrd), "--json"]) == 0
+    entities = read_entities(rrd)
+    for name in ("speed", "gap", "input", "admissible/low", "admissible/high"):
+        assert sum(1 for e in entities if e.startswith("/vehicles/") and e.endswith(name)) > 100, name
+    assert entities.get("/road/vehicles", 0) == 3000 and entities.get("/road/markings") == 1
+    assert len(list(RrdReader(str(rrd)).blueprints())) == 1
