@@ -61,7 +61,9 @@ def figures(n: int, density: str, overapprox: str | None, episodes: int, seed: i
     from guardian.evaluation.rollouts import Rollout, highway_rollouts
 
     guarded = overapprox is not None
-    r = highway_rollouts(Rollout(ENV, agent, action=action, controlled=n, guarded=guarded, env_config=_config(density, agent), config=GuardianConfig(overapprox=overapprox) if guarded else None), episodes, seed, progress=ProgressBar(f"N={n} {density} {overapprox or 'unguarded'}"))
+    spec = Rollout(ENV, agent, action=action, controlled=n, guarded=guarded, env_config=_config(density, agent),
+                   config=GuardianConfig(overapprox=overapprox or "trivial"))
+    r = highway_rollouts(spec, episodes, seed, progress=ProgressBar(f"N={n} {density} {overapprox or 'unguarded'}"))
     return {"n": n, "density": density, "overapprox": overapprox or "unguarded", "episodes": episodes,
             "distance_per_car": r["distance_mean"], "lane_changes": r["lane_changes"], "merges": r["merges"],
             "on_ramp": r["on_ending_lane"], "override_steps": r["override_steps"], "collisions": r["collisions"],

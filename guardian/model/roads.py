@@ -246,13 +246,20 @@ class RoadMap:
         each body widened by ``margin`` and swept by ``(dx, dy)`` (its motion over a step); a slot counts
         only where it is present along the body's extent.
 
-        One body (all scalars) is answered from a memo of the bodies asked before (every guarded car's
-        scene reads every car's body once per simulation step); the same arithmetic either way."""
+        Each body is answered from a memo of the bodies asked before (every guarded car's scene reads every
+        car's body once per simulation step)."""
         if all(isinstance(v, (int, float)) for v in (x, y, heading, dx, dy)):
-            return self.memo(("body", x, y, heading, length, width, margin, dx, dy),
-                             lambda: self._one_body_slots(float(x), float(y), float(heading), length, width, margin,
-                                                          float(dx), float(dy)))
-        return self._body_slots(x, y, heading, length, width, margin, dx, dy)
+            return self._body(float(x), float(y), float(heading), length, width, margin, float(dx), float(dy))
+        x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
+        dx, dy = np.broadcast_to(np.asarray(dx, float), x.shape), np.broadcast_to(np.asarray(dy, float), x.shape)
+        out = set()
+        for xi, yi, hi, dxi, dyi in zip(x.tolist(), y.tolist(), h.tolist(), dx.tolist(), dy.tolist()):
+            out |= self._body(xi, yi, hi, length, width, margin, dxi, dyi)
+        return frozenset(out)
+
+    def _body(self, x, y, h, length, width, margin, dx, dy) -> frozenset:
+        return self.memo(("body", x, y, h, length, width, margin, dx, dy),
+                         lambda: self._one_body_slots(x, y, h, length, width, margin, dx, dy))
 
     def memo(self, key: tuple, compute):
         """``compute()``, remembered under ``key`` for as long as this map (a function of the road and of
@@ -267,7 +274,7 @@ class RoadMap:
         return out
 
     def _one_body_slots(self, x, y, h, length, width, margin, dx, dy) -> frozenset:
-        """``_body_slots`` for one body, in floats (the same operations in the same order)."""
+        """The slots one body overlaps (``body_slots``), in floats."""
         rx, ry = half_extents(length, width, h)
         rx, ry = rx + margin, ry + margin
         ylo, yhi = y - ry + min(dy, 0.0), y + ry + max(dy, 0.0)
@@ -287,38 +294,6 @@ class RoadMap:
             rs, rr = rs + margin + sweep, rr + margin + sweep
             lo, hi = strip.s_limits()
             if r - rr < strip.width / 2 and r + rr > -strip.width / 2 and sl + rs > lo and sl - rs < hi:
-                out.add(strip.slot)
-        return frozenset(out)
-
-    def _body_slots(self, x, y, heading, length, width, margin, dx, dy) -> frozenset:
-        x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
-        dx, dy = np.broadcast_to(np.asarray(dx, float), x.shape), np.broadcast_to(np.asarray(dy, float), x.shape)
-        rx, ry = half_extents(length, width, h)
-        rx, ry = rx + margin, ry + margin
-        ylo, yhi = y - ry + np.minimum(dy, 0.0), y + ry + np.maximum(dy, 0.0)
-        xlo, xhi = x - rx + np.minimum(dx, 0.0), x + rx + np.maximum(dx, 0.0)
-        half = self.lane_width / 2
-        out = set()
-        for k, spans in enumerate(self.spans):
-            yk = self.slot_y(k)
-            beside = (ylo < yk + half) & (yhi > yk - half)
-            if not beside.any():
-                continue
-            along = np.zeros(x.shape, bool)
-            for lo, hi in spans:
-                along |= (xlo < hi) & (xhi > lo)
-            if (beside & along).any():
-                out.add(k)
-        sweep = np.hypot(dx, dy)
-        for strip in self.branches:
-            if strip.slot in out:
-                continue
-            sl, r = strip.local(x, y)
-            rs, rr = half_extents(length, width, h - strip.heading_at(sl))
-            rs, rr = rs + margin + sweep, rr + margin + sweep
-            lo, hi = strip.s_limits()
-            hit = (r - rr < strip.width / 2) & (r + rr > -strip.width / 2) & (sl + rs > lo) & (sl - rs < hi)
-            if hit.any():
                 out.add(strip.slot)
         return frozenset(out)
 

@@ -2,6 +2,7 @@
 with several guarded cars (MultiAgentAction): rollouts judged by the independent fault judge, unguarded
 figures on the same seeds beside, one decision object per car, and the ordered announcements."""
 import warnings
+from dataclasses import replace
 
 import gymnasium as gym
 import highway_env  # noqa: F401
@@ -113,7 +114,9 @@ def test_each_guarded_car_sees_the_others_as_traffic():
 
 @pytest.mark.parametrize("overapprox", ["trivial", "ordered"])
 def test_random_guarded_cars_do_not_crash_into_each_other_or_at_their_fault(overapprox):
-    r = highway_rollouts(Rollout("guardian/Merge-v0", "random", action="meta", controlled=4, env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5}, config=GuardianConfig(overapprox=overapprox)), 3, 0)
+    r = highway_rollouts(Rollout("guardian/Merge-v0", "random", action="meta", controlled=4,
+                                 env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5},
+                                 config=GuardianConfig(overapprox=overapprox)), 3, 0)
     assert r["guarded_cars"] == 4 and len(r["agents"]) == 4
     assert r["guarded_pair_collisions"] == 0 and r["ego_at_fault_collisions"] == 0 and r["collisions"] == 0
     assert r["unsupervised_steps"] == 0 and r["unchecked_entries"] == 0
@@ -121,7 +124,8 @@ def test_random_guarded_cars_do_not_crash_into_each_other_or_at_their_fault(over
 
 
 def test_unguarded_random_cars_do_crash_on_the_same_seeds():
-    r = highway_rollouts(Rollout("guardian/Merge-v0", "random", action="meta", controlled=4, guarded=False, env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5}), 3, 0)
+    r = highway_rollouts(Rollout("guardian/Merge-v0", "random", action="meta", controlled=4, guarded=False,
+                                 env_config={"traffic": "hard", "duration": 10, "policy_frequency": 5}), 3, 0)
     assert r["ego_at_fault_collisions"] > 0
 
 
@@ -240,13 +244,15 @@ def test_the_at_fault_crashes_found_on_merge_roads_with_traffic_that_did_not_see
     """The three collisions the judge gave a guarded car in 1,000-episode runs with highway-env's v0 search
     (a car sees only its own lane segment): each came right after steps in which a traffic car missed the
     ego. The guardian now treats such a car as one that neither brakes for the ego nor weighs it when
-    changing lanes (``guardian.adapters.highway_env.blindness.blind_to``): the same episodes, blind steps and all, end without a
-    collision; with the connected search (merge-v1's, guardian/Merge-v0's default) nobody is blind."""
+    changing lanes (``guardian.adapters.highway_env.blindness.blind_to``): the same episodes, blind steps and
+    all, end without a collision; with the connected search (merge-v1's, guardian/Merge-v0's default) nobody is blind."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        r = highway_rollouts(Rollout(env_id, "random", action=action, env_config={"neighbour_vehicles_connected_lanes": False}), 1, seed, first_episode=episode)
+        blind = Rollout(env_id, "random", action=action, env_config={"neighbour_vehicles_connected_lanes": False})
+        r = highway_rollouts(blind, 1, seed, first_episode=episode)
         if env_id == "merge-v0":  # guardian/Merge-v0's default search is the connected one: its own test
-            seen = highway_rollouts(Rollout(env_id, "random", action=action, env_config={"neighbour_vehicles_connected_lanes": True}), 1, seed, first_episode=episode)
+            seen = highway_rollouts(replace(blind, env_config={"neighbour_vehicles_connected_lanes": True}), 1, seed,
+                                    first_episode=episode)
             assert seen["collisions"] == 0 and seen["traffic_blind_steps"] == 0
     assert r["traffic_blind_steps"] > 0 and r["collisions"] == 0
 

@@ -29,13 +29,15 @@ def test_random_agent_behind_an_aggressive_lead_among_traffic(traffic_library):
 
 def test_adversarial_noise_entries_refused_are_never_booked_responsible(traffic_library):
     """Catches: 14 of 112 crashed; an entry refused in the record was booked as responsible by the ledger."""
-    r = highway_rollouts(Rollout(OVERTAKE_ENV, "random", library=traffic_library, intention="aggressive", disturbance="adversarial"), 4, 2000)
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "random", library=traffic_library, intention="aggressive",
+                                 disturbance="adversarial"), 4, 2000)
     assert _kept(r) and r["safety_violations"] == 0
 
 
 def test_three_lanes_twelve_cars_six_from_behind(traffic_library):
     """Catches: collisions with 12 cars on 3 lanes and with 6 cars starting behind."""
-    r = highway_rollouts(Rollout(OVERTAKE_ENV, "reckless", library=traffic_library, intention="aggressive", traffic=12, env_config={"lanes_count": 3, "traffic_from_behind": 6}), 3, 7)
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "reckless", library=traffic_library, intention="aggressive",
+                                 traffic=12, env_config={"lanes_count": 3, "traffic_from_behind": 6}), 3, 7)
     assert _kept(r) and r["safety_violations"] == 0
 
 
@@ -44,7 +46,9 @@ def test_a_seeking_agent_on_the_lane_line_stays_in_the_safe_set(traffic_library)
     """Catches (found by `guardian falsify`): the seek agent, 12 fast cars from behind, 3 lanes; the guardian kept
     full throttle by steering along the lane line, where the noise decides whether the body touches the
     left lane, and the ego left the safe set (6.8) behind the lead at step 116."""
-    r = highway_rollouts(Rollout(OVERTAKE_ENV, "seek", library=traffic_library, intention="aggressive", action="continuous", traffic=12, env_config={"lanes_count": 3, "observation": {"type": "OvertakeState"},
+    r = highway_rollouts(Rollout(OVERTAKE_ENV, "seek", library=traffic_library, intention="aggressive",
+                                 action="continuous", traffic=12,
+                                 env_config={"lanes_count": 3, "observation": {"type": "OvertakeState"},
                                      "traffic_from_behind": 6, "traffic_speed_range": [30.0, 38.0]}), 1, 200001)
     assert _kept(r) and r["safety_violations"] == 0 and r["steps"] == 300
 
@@ -90,7 +94,8 @@ def test_highway_fast_random_continuous_agents_of_the_reported_run():
 
 def test_starts_no_guardian_can_save_are_counted_apart():
     """Catches: crashes at steps 1-2 from a start 5 m behind a car counted as the guardian's failures."""
-    r = highway_rollouts(Rollout("highway-fast-v0", "reckless", action="meta", env_config={"vehicles_density": 2.5, "policy_frequency": 1}), 12, 0)
+    r = highway_rollouts(Rollout("highway-fast-v0", "reckless", action="meta",
+                                 env_config={"vehicles_density": 2.5, "policy_frequency": 1}), 12, 0)
     crashes = r["crashes"]
     assert r["starts_outside"] > 0 and _kept(r)
     assert r["ego_at_fault_collisions"] == sum(c["fault"] == "ego" and c["start_inside"] for c in crashes)
@@ -119,7 +124,8 @@ def test_a_pile_up_ahead_is_not_run_into():
     stops faster than the traffic model allows; the ego, on the self-safety boundary behind it, touched
     it (at its fault). Those cars tailgate from the start: they are at risk of a crash, and the ego keeps
     room to stop behind a car that may stop at once."""
-    r = highway_rollouts(Rollout("highway-v0", "trap", action="meta", env_config={"duration": 15, "vehicles_density": 2.5}), 1, 283008)
+    r = highway_rollouts(Rollout("highway-v0", "trap", action="meta",
+                                 env_config={"duration": 15, "vehicles_density": 2.5}), 1, 283008)
     assert r["collisions"] == 0 and r["ego_at_fault_collisions"] == 0
 
 
@@ -127,6 +133,7 @@ def test_a_car_cutting_into_the_egos_side_is_judged_at_contact():
     """Was (the campaign, seed 20023, 1 Hz): an IDM car beside the ego cuts into its lane and hits it; the
     crash then slides the ego over its lane line before the policy step ends. Judged at the step's end,
     both had entered each other's lane and the ego was at fault; at contact only the IDM car had."""
-    r = highway_rollouts(Rollout("highway-v0", "trap", action="continuous", env_config={"duration": 15, "vehicles_density": 2.5}), 1, 20023)
+    r = highway_rollouts(Rollout("highway-v0", "trap", action="continuous",
+                                 env_config={"duration": 15, "vehicles_density": 2.5}), 1, 20023)
     assert r["starts_outside"] == 0 and r["collisions"] == 1
     assert [(c["fault"], c["rule"]) for c in r["crashes"]] == [("other", "entry")]

@@ -177,7 +177,8 @@ def test_the_at_fault_crashes_with_reversing_traffic_at_the_ramps_end_are_covere
               "observation": {"type": "AttributesObservation", "attributes": ["time"]}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
-        r = highway_rollouts(Rollout("guardian/Merge-v0", "merge", action="meta", controlled=4, env_config=config, config=GuardianConfig(overapprox=overapprox)), 1, seed, first_episode=episode)
+        r = highway_rollouts(Rollout("guardian/Merge-v0", "merge", action="meta", controlled=4, env_config=config,
+                                     config=GuardianConfig(overapprox=overapprox)), 1, seed, first_episode=episode)
     assert r["ego_at_fault_collisions"] + r["ego_at_fault_after_outside_starts"] == 0, r["crashes"]
     assert r["unchecked_entries"] == 0 and r["traffic_reversing_uncovered_steps"] == 0
 

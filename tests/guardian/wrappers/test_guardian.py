@@ -56,7 +56,8 @@ def test_without_the_guardian_the_bad_driver_leaves_the_safe_set(library):
 
 def test_intention_awareness_overrides_less_on_the_same_seeds(library):
     aware = highway_rollouts(Rollout(TWO_CARS_ENV, "mpc", library=library, intention="cautious"), 5, 3)
-    pinned = highway_rollouts(Rollout(TWO_CARS_ENV, "mpc", library=library, intention="cautious", config=GuardianConfig(use_intention=False)), 5, 3)
+    pinned = highway_rollouts(Rollout(TWO_CARS_ENV, "mpc", library=library, intention="cautious",
+                                      config=GuardianConfig(use_intention=False)), 5, 3)
     assert aware["safety_violations"] == pinned["safety_violations"] == 0
     assert aware["override_steps"] < pinned["override_steps"]
     assert aware["identified_fraction"] == 1.0 and aware["wrong_identifications"] == 0
@@ -95,7 +96,8 @@ def test_rerun_recording_has_the_scene_and_the_overrides(library, tmp_path):
     from guardian.recording.rerun import read_entities, read_texts
 
     path = tmp_path / "run.rrd"
-    r = highway_rollouts(Rollout(TWO_CARS_ENV, "bad", library=library, intention="cautious", env_config={"duration": 8}), 2, 0, rerun_path=path)
+    r = highway_rollouts(Rollout(TWO_CARS_ENV, "bad", library=library, intention="cautious",
+                                 env_config={"duration": 8}), 2, 0, rerun_path=path)
     counts = read_entities(path)
     for entity in ("/road/lanes", "/road/ego", "/road/lead", "/inputs/proposed/throttle",
                    "/inputs/applied/steering", "/admissible/acceleration/low", "/admissible/steering/low",

@@ -89,13 +89,16 @@ def test_info_layout(traffic_library):
 
 def test_without_the_guardian_random_and_reckless_agents_fail(traffic_library):
     for agent in ("random", "reckless"):
-        r = highway_rollouts(Rollout(OVERTAKE_ENV, agent, guarded=False, library=traffic_library, intention="aggressive", disturbance="adversarial", env_config=SHORT), 6, 0)
+        r = highway_rollouts(Rollout(OVERTAKE_ENV, agent, guarded=False, library=traffic_library,
+                                     intention="aggressive", disturbance="adversarial", env_config=SHORT), 6, 0)
         assert r["safety_violations"] + r["collisions"] >= 4, agent
 
 
 def test_with_the_guardian_the_same_agents_do_not(traffic_library):
     for agent in ("random", "reckless", "mpc", "brake_check", "trap"):
-        r = highway_rollouts(Rollout(OVERTAKE_ENV, agent, library=traffic_library, intention="aggressive", disturbance="adversarial", env_config=SHORT, config=GuardianConfig(resample_unsafe_start=True)), 4, 0)
+        r = highway_rollouts(Rollout(OVERTAKE_ENV, agent, library=traffic_library, intention="aggressive",
+                                     disturbance="adversarial", env_config=SHORT,
+                                     config=GuardianConfig(resample_unsafe_start=True)), 4, 0)
         assert r["collisions"] == 0 and r["safety_violations"] == 0 and r["starts_outside"] == 0, agent
         assert r["unchecked_entries"] == 0 and r["reversing_steps"] == 0, agent
         assert r["model_violation_steps"] == 0 and r["wrong_identifications"] == 0, agent
@@ -106,7 +109,8 @@ def test_intention_awareness_overrides_less(traffic_library):
     """Behind the lead the guardian keeps F_R, which is the same for every intention; the identified
     intention's larger set pays off around the overtake (entering the left lane and passing)."""
     kw = dict(library=traffic_library, intention="cautious")
-    aware = highway_rollouts(Rollout(OVERTAKE_ENV, "bad", **kw, config=GuardianConfig(resample_unsafe_start=True)), 6, 0)
+    aware = highway_rollouts(Rollout(OVERTAKE_ENV, "bad", **kw,
+                                     config=GuardianConfig(resample_unsafe_start=True)), 6, 0)
     agnostic = highway_rollouts(Rollout(OVERTAKE_ENV, "bad", **kw, config=GuardianConfig(
         use_intention=False, resample_unsafe_start=True)), 6, 0)
     assert aware["override_steps"] < agnostic["override_steps"]

@@ -168,5 +168,6 @@ def test_a_start_inside_is_reported_and_unsafe_starts_can_be_drawn_again():
 
 @pytest.mark.parametrize("action", ["meta", "continuous"])
 def test_dense_single_lane_traffic_never_makes_the_ego_reverse(action):
-    r = highway_rollouts(Rollout("highway-v0", "reckless", action=action, env_config={"lanes_count": 1, "vehicles_density": 2.5, "duration": 15}), 3, 0)
+    r = highway_rollouts(Rollout("highway-v0", "reckless", action=action,
+                                 env_config={"lanes_count": 1, "vehicles_density": 2.5, "duration": 15}), 3, 0)
     assert r["reversing_steps"] == 0 and r["ego_at_fault_collisions"] == 0
