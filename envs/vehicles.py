@@ -248,3 +248,29 @@ class PointMassIDM(BodyContact, IDMVehicle):
         self.heading = 0.0
         self.speed = float(min(max(self.speed + dt * a, 0.0), self.MAX_SPEED))
         self.on_state_update()
+
+
+class LineHuggingIDM(IDMVehicle):
+    """highway-env's IDM car that keeps its centre ``OFFSET`` metres off its lane's centre line: with a 4 m lane
+    and a 2 m wide body its body lies over the line by 0.6 m while its centre (and its lane index) stay in its
+    lane. The adversarial traffic for a guardian that reads lanes from lane indices alone (tests, campaigns:
+    ``other_vehicles_type="envs.vehicles.LineHuggingIDM"``)."""
+
+    OFFSET = 1.6  # [m] towards the right of the direction of travel (highway-env's +y); negative: the left
+
+    def steering_control(self, target_lane_index) -> float:
+        lane = self.road.network.get_lane(target_lane_index)
+        s, r = lane.local_coordinates(self.position)
+        heading_ahead = lane.heading_at(s + self.speed * self.TAU_PURSUIT)
+        lateral_speed = -self.KP_LATERAL * (r - self.OFFSET)
+        heading_ref = heading_ahead + np.clip(np.arcsin(np.clip(lateral_speed / utils.not_zero(self.speed), -1, 1)),
+                                              -np.pi / 4, np.pi / 4)
+        heading_rate = self.KP_HEADING * utils.wrap_to_pi(heading_ref - self.heading)
+        slip = np.arcsin(np.clip(self.LENGTH / 2 / utils.not_zero(self.speed) * heading_rate, -1, 1))
+        return float(np.clip(np.arctan(2 * np.tan(slip)), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+
+
+class LineHuggingLeftIDM(LineHuggingIDM):
+    """``LineHuggingIDM`` over the line on its left (highway-env's -y)."""
+
+    OFFSET = -1.6

@@ -124,7 +124,7 @@ class BicycleGuardian:
         held = self.held & now or now  # where the body is and may be: the start of any entry
         if self.meta:
             occupied, entry = self._meta_lanes(ego, scene, now, held, d)
-            steer = self._meta_steering(ego, occupied - touched, steer_prop, d)
+            steer = self._meta_steering(ego, scene, occupied - touched, steer_prop, d)
         else:
             steer, occupied, entry = self._steering(ego, scene, now, held, steer_prop, d, touched)
         entry = intersect_intervals(entry, touched_speeds)
@@ -207,7 +207,7 @@ class BicycleGuardian:
             return now | {ego.lane, ego.target_lane}, speeds
         return now | {ego.lane, ego.target_lane}, [(0.0, np.inf)]
 
-    def _meta_steering(self, ego: EgoState, occupied: set, proposed: float, d: Decision) -> float:
+    def _meta_steering(self, ego: EgoState, scene: Scene, occupied: set, proposed: float, d: Decision) -> float:
         """The controller's steering when its path (steering, then straightening) keeps the body in the
         lanes the meta lane change holds (``occupied``); else the nearest steering whose path does. At low
         speed highway-env's controller turns a lane change steeply, and the rotated body would reach past
@@ -218,11 +218,13 @@ class BicycleGuardian:
                 continue
             lanes, _ = kin.path_lanes_of(ego, steer)
             beyond = lanes - occupied
-            if not beyond:
+            near = "" if beyond else self._closes_in(ego, scene, steer)
+            if not beyond and not near:
                 return float(steer)
             if k == 0:
-                d.note(f"steering {proposed:.3f} rad refused: the lane change's path would reach lanes "
-                       f"{sorted(self.lanes.itha_set(beyond))} beyond the lanes it holds")
+                d.note(f"steering {proposed:.3f} rad refused: " + (
+                    f"the lane change's path would reach lanes {sorted(self.lanes.itha_set(beyond))} beyond the "
+                    "lanes it holds" if beyond else f"the body would close in sideways on {near} beside it"))
         d.level, d.changed = "failsafe", "failsafe"
         d.note("failsafe: no steering keeps the body in the lanes the lane change holds; straightening")
         return float(kin.recovery(ego))
@@ -259,12 +261,37 @@ class BicycleGuardian:
                 if entry is None:
                     d.note(f"entering lane {d.entries[-1].lane} refused: {d.entries[-1].reason}")
                     continue
+            near = self._closes_in(ego, scene, steer)
+            if near:
+                d.note(why and why + f"the body would close in sideways on {near} beside it")
+                continue
             return float(steer), now | set(kin.lanes_after(ego, nxt)) | set(lanes), entry
         d.level, d.changed = "failsafe", "failsafe"
-        d.note("failsafe: no steering keeps the body out of lanes it may not enter; straightening")
+        d.note("failsafe: no steering keeps the body out of lanes it may not enter and clear of the cars beside it; "
+               "straightening")
         steer = kin.recovery(ego)
         lanes, _ = kin.path_lanes_of(ego, steer)
         return steer, now | set(lanes), [(0.0, np.inf)]
+
+    def _closes_in(self, ego: EgoState, scene: Scene, steering: float) -> str:
+        """The name of a car beside the ego (its body alongside, or able to come alongside before the path of
+        ``steering`` is done) whose body the path would reach further into sideways than the ego's body reaches
+        now; "" when there is none. The traffic rules order cars along a lane; a body over a lane line beside
+        the ego is not ordered, and only the ego's own sideways motion can close that gap."""
+        cars = [c for c in scene.others if c.across]
+        if not cars:
+            return ""
+        across, horizon = self.kin.path_across_of(ego, steering)
+        (now_lo, now_hi), accel = across[0], self.config.traffic_accel
+        for car in cars:
+            gap = max(car.front - car.length - ego.front, ego.front - self.kin.length - car.front)
+            if gap > abs(ego.speed - car.speed) * horizon + accel * horizon ** 2:
+                continue
+            lo, hi = car.across
+            depth_now = max(min(now_hi, hi) - max(now_lo, lo), 0.0)
+            if max(min(h1, hi) - max(l1, lo) for l1, h1 in across) > depth_now + 1e-9:
+                return car.name or "a car"
+        return ""
 
     def _accelerations(self, ego: EgoState, scene: Scene, occupied: set, entry: list, d: Decision) -> tuple:
         """Self-safe accelerations (7.4) in every occupied lane, within the entry's responsible speeds,

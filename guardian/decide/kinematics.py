@@ -260,6 +260,22 @@ class BicycleEgo:
     def path_lanes_of(self, ego, steering: float) -> tuple[frozenset, float]:
         return self.path_lanes(ego.y, ego.heading, ego.speed, steering)
 
+    def path_across_of(self, ego, steering: float) -> tuple[list, float]:
+        """Where the body reaches across the road (widened by ``LATERAL_MARGIN``, swept over each step) now and
+        along ``path`` at both speed extremes: ``([(y_lo, y_hi), ...], seconds the path lasts)``."""
+        states = [(ego.y, ego.heading, ego.speed)]
+        steps = 0
+        for step in (self.dt * self.accel, -self.dt * self.accel):
+            path = self.path(ego.y, ego.heading, ego.speed, steering, step)
+            states += path
+            steps = max(steps, len(path))
+        return [self._across(y, h, v) for y, h, v in states], steps * self.dt
+
+    def _across(self, y: float, heading: float, speed: float) -> tuple:
+        r = self.half_extent(heading) + self.LATERAL_MARGIN
+        dy = self.dt * speed * math.sin(heading)
+        return min(y, y + dy) - r, max(y, y + dy) + r
+
     def depth_of(self, ego) -> float:
         return self.off_road_depth(ego.y, ego.heading)
 
@@ -372,6 +388,16 @@ class RoadMapEgo(BicycleEgo):
             states += self._path(ego.x, ego.y, ego.heading, ego.speed, steering, step)
         xs, ys, hs, vs = (np.array(c) for c in zip(*states))
         return self._slots(xs, ys, hs, vs), self._depth(xs, ys, hs)
+
+    def path_across_of(self, ego, steering: float) -> tuple[list, float]:
+        """As ``BicycleEgo.path_across_of``, in world y (corridor lanes run along +x)."""
+        states = [(ego.x, ego.y, ego.heading, ego.speed)]
+        steps = 0
+        for step in (self.dt * self.accel, -self.dt * self.accel):
+            path = self._path(ego.x, ego.y, ego.heading, ego.speed, steering, step)
+            states += path
+            steps = max(steps, len(path))
+        return [self._across(y, h, v) for _, y, h, v in states], steps * self.dt
 
     def depth_of(self, ego) -> float:
         return self._depth([ego.x], [ego.y], [ego.heading])

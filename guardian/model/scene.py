@@ -26,6 +26,7 @@ class Car:
     fixed: bool = False       # never moves and is never pushed (an obstacle, a lane's end)
     blind: bool = False       # does not see the ego (highway-env's v0 search): neither brakes for it nor
                               # weighs it when changing lanes (guardian.adapters.highway_env.blindness.blind_to)
+    across: tuple = ()        # (y_lo, y_hi) its body reaches across the road now, in the ego state's y; () unknown
 
 
 @dataclass(frozen=True)

@@ -164,6 +164,10 @@ def action_kind(base) -> str:
         if kind == "DiscreteMetaAction" and list(at.actions.values()) != META_ACTIONS:
             raise ConfigError("Guardian: config 'action' must offer all five meta actions "
                               "('longitudinal' and 'lateral' true)")
+        if getattr(at, "dynamical", False):
+            raise ConfigError("Guardian: config 'action.dynamical' true (highway-env's dynamic bicycle, with tyre "
+                              "slip and yaw inertia) cannot be supervised: the guardian's ego model is the kinematic "
+                              "bicycle; leave 'dynamical' false")
         kinds.add("DiscreteMetaAction" if kind == "DiscreteMetaAction" else "ContinuousAction")
     if len(kinds) != 1:
         raise ConfigError("Guardian: every controlled car must have the same action type")

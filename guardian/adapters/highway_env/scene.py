@@ -22,13 +22,11 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
                reverse_reach: float = REVERSE_REACH) -> Scene:
     """The road as ITHA agents: the ego (in ITHA ``ego_lanes``) and every car but the overtake lead.
 
-    A car changing lanes (``lane_index != target_lane_index``) occupies both. ``ego`` is the guarded car
-    whose scene this is (default: the env's ego); ``guarded`` are the ids of every guarded car (they
-    announce, ``Car.announces``). On a ``RoadMap``, and with several guarded cars, every car also occupies
-    the lanes its body overlaps (widened as the guardian widens its own: a slow car turning out of a lane
-    reaches back into it); with one guarded car on the straight road a car occupies its lane and its
-    target lane only (highway-env's lane indices);
-    ``announced`` maps a guarded car's id to the ITHA lanes it announced it enters this step. On a
+    A car occupies every lane its body overlaps (widened as the guardian widens its own: a slow car turning out
+    of a lane reaches back into it), and its lane and target lane (a car changing lanes occupies both): never
+    the lane index alone, since a body may lie over a line while its centre keeps its lane. ``ego`` is the
+    guarded car whose scene this is (default: the env's ego); ``guarded`` are the ids of every guarded car
+    (they announce, ``Car.announces``); ``announced`` maps a guarded car's id to the ITHA lanes it announced it enters this step. On a
     ``RoadMap`` fronts are along the lanes' chains, obstacles are standing cars and each dead end is a
     standing car of length 0 (``guardian.model.roads``).
 
@@ -48,19 +46,23 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
             continue
         lane = veh.lane_index[2]
         target = veh.target_lane_index[2] if _is_controlled(type(veh)) else lane
-        lanes = _itha_pair(lanes_of, lane, target)
-        if guarded:
-            lanes = lanes | lanes_of.itha_set(_straight_body_lanes(veh, road))
-            lanes = lanes | announced.get(id(veh), frozenset())
+        lanes = _itha_pair(lanes_of, lane, target) | lanes_of.itha_set(_straight_body_lanes(veh, road))
+        lanes = lanes | announced.get(id(veh), frozenset())
         if veh.speed < 0:
             lanes = lanes | frozenset(j + s for j in lanes for s in (-1, 1) if 1 <= j + s <= road.n_lanes)
         others.append(Car(float(veh.position[0]) + veh.LENGTH / 2, float(veh.speed), lanes, veh.LENGTH, f"car {k}",
-                          id(veh) in guarded, bool(veh.crashed)))
+                          id(veh) in guarded, bool(veh.crashed), across=_across(veh)))
         own.append(lanes_of.itha(lane))
     others = lengthen_reversing(others, own, reverse_reach)
     me = Car(float(ego.position[0]) + ego.LENGTH / 2, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego",
              id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)
+
+
+def _across(body) -> tuple:
+    """Where ``body`` reaches across the road (world y) now."""
+    y, r = float(body.position[1]), half_extents(body.LENGTH, body.WIDTH, float(body.heading))[1]
+    return y - r, y + r
 
 
 def _straight_body_lanes(veh, road: Road) -> frozenset:
@@ -87,7 +89,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_
             lanes = lanes_of.itha_set(slots)
         lanes = lanes | announced.get(id(veh), frozenset())
         others.append(Car(front, float(veh.speed), lanes, veh.LENGTH, f"car {k}", id(veh) in guarded,
-                          bool(veh.crashed), blind=blind))
+                          bool(veh.crashed), blind=blind, across=_across(veh)))
         own.append(lanes_of.itha(road.slot_of(veh.lane_index)))
     others = lengthen_reversing(others, own, reverse_reach)
     for k, obj in enumerate(base.road.objects):
@@ -99,7 +101,7 @@ def _map_scene(base, road: RoadMap, ego, ego_lanes, guarded, announced, reverse_
             index = road.memo(("object lane", x, y, float(obj.heading)),
                               lambda: base.road.network.get_closest_lane_index(obj.position, obj.heading))
             others.append(Car(road.longitudinal(index, x, y) + obj.LENGTH / 2, 0.0,
-                              lanes_of.itha_set(slots), obj.LENGTH, f"obstacle {k}", fixed=True))
+                              lanes_of.itha_set(slots), obj.LENGTH, f"obstacle {k}", fixed=True, across=_across(obj)))
     others.extend(road.end_cars())
     me = Car(ego_front, float(ego.speed), frozenset(ego_lanes), ego.LENGTH, "ego", id(ego) in guarded)
     return Scene(me, tuple(others), road.n_lanes)

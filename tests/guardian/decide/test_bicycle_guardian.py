@@ -1,5 +1,6 @@
 """highway-env's bicycle ego on hand-built scenes, without a simulator (guardian.decide.bicycle)."""
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -204,3 +205,27 @@ def test_a_wreck_margin_that_is_not_a_finite_distance_is_refused(bad):
 
     with pytest.raises(ConfigError, match="wreck_margin"):
         GuardianConfig(wreck_margin=bad)
+
+
+def test_a_body_over_the_line_beside_the_ego_is_never_closed_in_on_sideways():
+    """A car in lane 0 keeps its body 0.6 m over the line into the ego's lane 1, alongside the ego. Steering
+    towards it stays inside lane 1 (no lane entry), so the lanes alone would allow it; stepped in closed loop
+    with the agent steering hard towards it, the ego's body never reaches into the car's, and the guardian
+    says why it refused. Steering away is let through."""
+    g = _guard(dt=1 / 15)
+    kin = g.kin
+    ego = EgoState(100.0, 4.9, 0.0, 5.0, 1, 1)
+    hugging = Car(99.5, 5.0, frozenset({N - 0, N - 1}), 5.0, "car 7", across=(0.6, 2.6))  # alongside, 0.5 m back
+    scene = Scene(Car(ego.front, ego.speed, frozenset(), 5.0, "ego"), (hugging,), N)
+    state, said = ego, False
+    for _ in range(60):
+        applied, d = g.step(state, scene, [0.0, -0.35])   # hard towards lane 0
+        said |= any("close in sideways on car 7" in r for r in d.reasons)
+        state = _bicycle(kin, state, applied[0], applied[1])
+        hugging = replace(hugging, front=hugging.front + kin.dt * hugging.speed)   # it keeps alongside
+        scene = Scene(Car(state.front, state.speed, frozenset(), 5.0, "ego"), (hugging,), N)
+        assert state.y - kin.half_extent(state.heading) > 2.6   # never into the car's body
+    assert said
+    g.reset()
+    away, d = g.step(ego, scene, [0.0, 0.1])
+    assert away[1] == pytest.approx(0.1) and d.changed == "none"

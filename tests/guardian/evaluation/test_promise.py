@@ -137,3 +137,17 @@ def test_a_car_cutting_into_the_egos_side_is_judged_at_contact():
                                  env_config={"duration": 15, "vehicles_density": 2.5}), 1, 20023)
     assert r["starts_outside"] == 0 and r["collisions"] == 1
     assert [(c["fault"], c["rule"]) for c in r["crashes"]] == [("other", "entry")]
+
+
+HUGGING = {"other_vehicles_type": "envs.vehicles.LineHuggingIDM", "simulation_frequency": 15, "vehicles_density": 2.0}
+
+
+@pytest.mark.parametrize("action, episode", [("continuous", 31), ("continuous", 32), ("meta", 8), ("continuous", 9)])
+def test_traffic_whose_body_lies_over_a_lane_line_is_kept_clear_of(action, episode):
+    """Catches: IDM traffic keeping its centre 1.6 m off its lane's centre (its body 0.6 m over the line, its
+    lane index unchanged). Reading lanes from lane indices, the guardian let the ego run into such a car from
+    beside or behind (episodes 31, 32, meta 8, all starting inside); with lanes from bodies alone it still
+    steered sideways within its own lane into one alongside (episode 9)."""
+    r = highway_rollouts(Rollout("highway-fast-v0", "seek", action=action, env_config=HUGGING), 1, 0,
+                         first_episode=episode)
+    assert r["starts_outside"] == 0 and r["ego_at_fault_collisions"] == 0, r["crashes"]

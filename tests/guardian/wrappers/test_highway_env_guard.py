@@ -93,9 +93,11 @@ def test_unknown_agent_is_refused():
     ("highway-v0", {"action": {"type": "MultiAgentAction", "action_config": {"type": "DiscreteMetaAction",
                                                                            "lateral": False}}}, "five meta actions"),
     ("highway-v0", {"action": {"type": "DiscreteMetaAction", "lateral": False}}, "five meta actions"),
+    ("highway-v0", {"action": {"type": "ContinuousAction", "dynamical": True}}, "'action.dynamical' true"),
     ("roundabout-v0", {}, "cannot reason about this env's road: lane .* runs against the direction of travel"),
     ("two-way-v0", {}, "cannot reason about this env's road"),
-    ("lane-keeping-v0", {}, "cannot reason about this env's road: no lane runs straight along"),
+    ("parking-v0", {}, "cannot reason about this env's road: no lane runs straight along"),
+    ("lane-keeping-v0", {}, "'action.dynamical' true"),
 ])
 def test_configs_it_cannot_supervise_are_refused(env_id, config, match):
     with pytest.raises(ConfigError, match=match):
