@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from guardian.model.body import half_extents
+from guardian.model.body import half_extents, lanes_overlapped
 from guardian.model.lanes import LaneNumbering
 from guardian.model.scene import Car
 
@@ -52,6 +52,19 @@ class Road:
     def numbering(self) -> LaneNumbering:
         """Lane ids (0 = leftmost) and ITHA lanes (1 = rightmost)."""
         return LaneNumbering(self.n_lanes)
+
+    def body_slots(self, x, y, heading, length: float, width: float, margin: float = 0.0) -> frozenset:
+        """Lanes a body at ``(x, y, heading)`` overlaps, widened by ``margin``."""
+        r = half_extents(length, width, float(heading))[1] + margin
+        return lanes_overlapped(float(y) - r, float(y) + r, self.n_lanes, self.lane_width)
+
+    def beside(self, slots, x: float) -> frozenset:
+        """The lanes next to ``slots`` (the road has them everywhere)."""
+        return frozenset(k + s for k in slots for s in (-1, 1) if 0 <= k + s < self.n_lanes)
+
+    def nearest_slot(self, x: float, y: float) -> int:
+        """The lane whose centre line is nearest to ``(x, y)``."""
+        return min(max(int(round(float(y) / self.lane_width)), 0), self.n_lanes - 1)
 
 
 
@@ -194,6 +207,19 @@ class RoadMap:
         """Is slot ``slot`` a corridor lane at ``x``?"""
         return 0 <= slot < self.n_lanes and any(lo <= x <= hi for lo, hi in self.spans[slot])
 
+    def beside(self, slots, x: float) -> frozenset:
+        """The corridor lanes next to ``slots`` present at ``x``."""
+        return frozenset(k + s for k in slots for s in (-1, 1) if self.slot_at(k + s, x))
+
+    def nearest_slot(self, x: float, y: float) -> int:
+        """The slot whose strip holds ``(x, y)``: a branch's slot on a branch, else the nearest corridor lane
+        present at ``x``."""
+        strip = self.on_branch(x, y)
+        if strip is not None:
+            return strip.slot
+        present = [k for k in range(self.n_lanes) if self.slot_at(k, x)] or list(range(self.n_lanes))
+        return min(present, key=lambda k: abs(float(y) - self.slot_y(k)))
+
     def on_branch(self, x: float, y: float):
         """The branch whose strip holds the point ``(x, y)`` while no corridor lane does, else None."""
         k = int(round((y - self.y0) / self.lane_width))
@@ -305,3 +331,30 @@ def outline(x, y, heading, length: float, width: float):
     a = np.array([1, 1, -1, -1, 1, -1, 0, 0], float) * length / 2
     b = np.array([1, -1, 1, -1, 0, 0, 1, -1], float) * width / 2
     return x[:, None] + a * c - b * s, y[:, None] + a * s + b * c
+
+
+def road_as_dict(road) -> dict:
+    """``road`` (``Road`` or ``RoadMap``) as plain JSON values: what the service's scene sessions take (open
+    span ends are ``None``); ``road_from_dict`` reads it back."""
+    if isinstance(road, Road):
+        return {"lanes": road.n_lanes, "lane_width": road.lane_width}
+    open_end = lambda v: None if math.isinf(v) else v  # noqa: E731
+    return {"lanes": road.n_lanes, "lane_width": road.lane_width, "y0": road.y0,
+            "spans": [[[open_end(lo), open_end(hi)] for lo, hi in spans] for spans in road.spans],
+            "branches": [{k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s).items()} for s in road.branches],
+            "ends": [[k, s] for k, s in road.ends]}
+
+
+def road_from_dict(spec: dict):
+    """The road of a ``road_as_dict`` value: a ``Road`` when only lanes and their width are given (lane 0 at
+    ``y = 0``), else a ``RoadMap``."""
+    if set(spec) <= {"lanes", "lane_width"}:
+        return Road(int(spec["lanes"]), float(spec["lane_width"]))
+    n = int(spec["lanes"])
+    spans = spec.get("spans") or [[[None, None]]] * n
+    spans = tuple(tuple((-math.inf if lo is None else float(lo), math.inf if hi is None else float(hi))
+                        for lo, hi in slot) for slot in spans)
+    branches = tuple(Strip(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in b.items()})
+                     for b in spec.get("branches", ()))
+    return RoadMap(float(spec["lane_width"]), n, float(spec.get("y0", 0.0)), spans, branches, (),
+                   tuple((int(k), float(s)) for k, s in spec.get("ends", ())))
