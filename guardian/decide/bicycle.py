@@ -76,6 +76,11 @@ class BicycleGuardian:
             return False, "a lane change is already under way"
         if not 0 <= target < self.kin.n_lanes:
             return False, "no such lane"
+        if target == ego.lane:
+            return False, "not a lane change: that is the ego's own lane"
+        if abs(target - ego.lane) != 1:
+            return False, (f"lane {self.lanes.itha(target)} is not next to the ego's lane {self.lanes.itha(ego.lane)}: "
+                           "one lane at a time")
         if not self.kin.lane_here(target, ego):
             return False, "no lane there at this point of the road"
         lane, home = self.lanes.itha(target), self.lanes.itha(ego.lane)
@@ -108,9 +113,12 @@ class BicycleGuardian:
         decision : Decision
             ``refused`` holds the target of a meta lane change to abandon.
         """
-        a_prop, steer_prop = (float(v) for v in proposed)
+        a_prop, asked = (float(v) for v in proposed)
         kin = self.kin
-        d = Decision(proposed=[a_prop, steer_prop], applied=[], changed="none")
+        d = Decision(proposed=[a_prop, asked], applied=[], changed="none")
+        steer_prop = min(max(asked, -kin.max_steering), kin.max_steering)  # a client may ask beyond the bound
+        if steer_prop != asked:
+            d.note(f"steering clipped to the model's bound ±{kin.max_steering:g} rad")
         now = set(kin.occupied(ego)) or {ego.lane}
         if self.held is None:
             self.held = set(now)  # the start: every lane the body overlaps when supervision begins
@@ -134,7 +142,8 @@ class BicycleGuardian:
             if abs(a - a_prop) > 1e-9:
                 self._explain(ego, a_prop, a, limits, d)
         else:
-            a = max(-self.config.traffic_accel, -ego.speed / kin.dt)
+            bound = self.config.traffic_accel  # a reversing ego (speed < 0) is stopped no harder than the bound
+            a = min(max(-bound, -ego.speed / kin.dt), bound)
             d.level, d.changed = "failsafe", "failsafe"
             d.note("failsafe: no self-safe acceleration; braking as hard as the model allows, down to standstill")
         d.applied = [a, steer]
@@ -145,9 +154,11 @@ class BicycleGuardian:
         d.touched = sorted(self.lanes.itha_set(touched - self.held))
         d.admissible_acceleration = [list(r) for r in accel]
         d.in_invariant_set = bool(accel)
-        if d.changed == "none" and (abs(a - a_prop) > 1e-9 or abs(steer - steer_prop) > 1e-12):
-            d.changed = "throttle" if abs(steer - steer_prop) <= 1e-12 else (
+        if d.changed == "none" and (abs(a - a_prop) > 1e-9 or abs(steer - asked) > 1e-12):
+            d.changed = "throttle" if abs(steer - asked) <= 1e-12 else (
                 "steering" if abs(a - a_prop) <= 1e-9 else "both")
+            if steer_prop != asked and steer == steer_prop and (abs(a - a_prop) <= 1e-9 or d.clipped_to_model):
+                d.clipped_to_model = True  # the only change: clips to the model's bounds
         return np.array([a, steer]), d
 
     def _touched(self, ego: EgoState, scene: Scene, now: set, d: Decision) -> tuple[set, list]:

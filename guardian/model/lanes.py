@@ -12,7 +12,10 @@ the traffic rules (``guardian.decide.traffic``), the scene's cars and every ``De
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+
+_LANE_WORDS = re.compile(r"\b(lanes? )(\[[0-9, ]*\]|\d+(?![\d.]))")  # "lane 2", "lanes [1, 2]" in a decision's text
 
 
 @dataclass(frozen=True)
@@ -36,3 +39,12 @@ class LaneNumbering:
     def slot_set(self, lanes) -> frozenset:
         """The slots of ITHA ``lanes``."""
         return frozenset(self.n_lanes - lane for lane in lanes)
+
+    def slot_text(self, text: str) -> str:
+        """A decision's text (which says ITHA lanes) with its lanes as slots."""
+        def slots(m) -> str:
+            value = m.group(2)
+            if value.startswith("["):
+                return m.group(1) + str(sorted(self.slot(int(k)) for k in value[1:-1].split(",") if k.strip()))
+            return m.group(1) + str(self.slot(int(value)))
+        return _LANE_WORDS.sub(slots, text)

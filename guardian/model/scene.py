@@ -11,7 +11,7 @@ simulator by ``guardian.adapters.highway_env.scene`` and by hand in the tests: n
 from __future__ import annotations
 
 import bisect
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
@@ -31,17 +31,19 @@ class Car:
 
 @dataclass(frozen=True)
 class Scene:
-    """The road at one instant; each lane's nearest car ahead of and behind the ego, computed once."""
+    """The road at one instant; each lane's nearest car ahead of and behind the ego, computed once.
+    ``sensed``: the readings it was built from (``guardian.model.sensing.Sensed``), when a reader built it."""
 
     ego: Car
     others: tuple
     n_lanes: int
+    sensed: tuple = field(default=(), compare=False, repr=False)
 
     def with_ego_lanes(self, lanes) -> "Scene":
         """The same road with the ego occupying ``lanes`` (e.g. where it may be after a step)."""
         e = self.ego
-        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name, e.announces, e.crashed, e.fixed), self.others,
-                     self.n_lanes)
+        return Scene(Car(e.front, e.speed, frozenset(lanes), e.length, e.name, e.announces, e.crashed, e.fixed),
+                     self.others, self.n_lanes, self.sensed)
 
     def leader(self, lane: int):
         """The nearest car in ``lane`` whose front is at or ahead of the ego's (None if there is none)."""

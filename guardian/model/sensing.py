@@ -70,4 +70,4 @@ def scene_of(road, ego: Car, sensed, reverse_reach: float, margin: float, fixed=
     own = [road.numbering.itha(s.own) for s in moving]
     cars = lengthen_reversing(cars, own, reverse_reach)
     cars += [car_of(road, s, margin) for s in sensed if s.fixed]
-    return Scene(ego, tuple(cars) + tuple(fixed), road.n_lanes)
+    return Scene(ego, tuple(cars) + tuple(fixed), road.n_lanes, tuple(sensed))

@@ -47,6 +47,26 @@ def test_the_failsafe_brakes_to_standstill_and_never_reverses():
     assert d.level == "failsafe" and applied[0] == -6.0
 
 
+def test_a_reversing_ego_gets_an_acceleration_inside_its_bounds():
+    """An ego rolling backwards (outside the model, e.g. pushed by a crash): the fail-safe stops it no harder
+    than the bound (it gave +15 m/s^2 for -1 m/s at dt 1/15)."""
+    g = BicycleGuardian(BicycleEgo(1 / 15, 6.0, 5.0, 2.0, W, N, math.pi / 4), GuardianConfig(), False)
+    for speed in (-1.0, -0.1, -30.0):
+        ego = EgoState(100.0, 4.0, 0.0, speed, 1, 1)
+        applied, d = g.step(ego, _scene(ego, [(101.0, 0.0, 1)]), [0.0, 0.0])
+        assert -6.0 <= applied[0] <= 6.0
+
+
+def test_a_steering_beyond_the_bound_is_clipped_to_it_and_said():
+    """A client of the service may ask any steering: the applied one stays within ±max_steering."""
+    g = _guard()
+    ego = EgoState(100.0, 4.0, 0.0, 20.0, 1, 1)
+    for asked in (1.0, -1.4, 3.0):
+        applied, d = g.step(ego, _scene(ego, []), [0.0, asked])
+        assert abs(applied[1]) <= g.kin.max_steering and d.proposed[1] == asked
+        assert d.changed != "none" and d.clipped_to_model == (abs(applied[1]) == g.kin.max_steering)
+
+
 def test_steering_is_checked_over_the_horizon_that_undoes_the_heading():
     """Heading towards lane 0 where a car drives alongside: one step of the proposed steering keeps the
     body out, but no straightening afterwards can: it is refused, and the applied steering's whole
