@@ -7,7 +7,6 @@ Each subclasses a builtin, so ``except ValueError`` still catches a bad file or 
   env config);
 * ``HighDFormatError`` (``ValueError``): a HighD-format file is malformed; the message says where;
 * ``ServiceError`` (``Exception``): a refused service request, with the HTTP status a client sees;
-* ``FramingError`` (``Exception``): an HTTP request the service cannot read (answered, then closed);
 * ``LPError``, ``StaleCacheError`` (``RuntimeError``), ``SchedulerError`` (``ConnectionError``: no Dask
   scheduler answers at a ``--scheduler`` address; the message names the address and the reason): the
   engine's (``rcis.errors``), re-exported;
@@ -57,14 +56,5 @@ class Terminated(KeyboardInterrupt):
     """The process received SIGTERM; handled like Ctrl-C."""
 
 
-class FramingError(Exception):
-    """An HTTP request the service cannot read: answered with ``status`` and ``message``, then closed."""
-
-    def __init__(self, status: int, message: str):
-        super().__init__(message)
-        self.status = status
-        self.message = message
-
-
-__all__ = ["ConfigClash", "ConfigError", "FramingError", "HighDFormatError", "LPError", "SchedulerError", "ServiceError",
+__all__ = ["ConfigClash", "ConfigError", "HighDFormatError", "LPError", "SchedulerError", "ServiceError",
            "StaleCacheError", "Terminated"]

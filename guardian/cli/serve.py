@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import signal
 import sys
 
 from guardian.cli.common import add_library_options, emit, load_library
@@ -43,14 +42,7 @@ def cmd_serve(args) -> int:
             "max_connections_per_worker": limits.connection_cap()}
     if config.workers == 1:
         _announce(info, args, config)
-
-        async def main():
-            loop = asyncio.get_running_loop()
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                loop.add_signal_handler(sig, server.request_stop)
-            await server.serve(sock)
-
-        asyncio.run(main())
+        asyncio.run(server.serve(sock))  # SIGTERM and SIGINT stop it gracefully
         sock.close()
         return 0
     from guardian.service.workers import serve_workers
@@ -67,11 +59,21 @@ def _announce(info: dict, args, config) -> None:
     sys.stdout.flush()
 
 
+def port_number(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"--port must be a TCP port, 0..65535, got {text!r}")
+    return value
+
+
 def add_commands(sub) -> None:
     p = sub.add_parser("serve", help="the guardian as an HTTP and WebSocket JSON service (one guardian per session)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default loopback; any other address needs a token)")
-    p.add_argument("--port", type=int, default=8765, help="0 picks a free port (printed)")
+    p.add_argument("--port", type=port_number, default=8765, help="a TCP port, 0..65535; 0 picks a free one (printed)")
     p.add_argument("--token", default=None,
                    help="bearer token checked on every request and stream (default: $GUARDIAN_TOKEN)")
     p.add_argument("--admin-token", default=None,

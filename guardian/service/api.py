@@ -1,13 +1,17 @@
-"""The guardian service's HTTP API: who may ask what, and the routes (no I/O; see ``protocol``).
+"""The guardian service's HTTP API: the requests it takes and the routes (no I/O; ``app`` serves them).
 
     GET    /health                -> 200 liveness and counts
     GET    /ready                 -> 200 when every worker is warmed up and none is stopping, else 503
     GET    /sessions              -> 200 every live session (admin token only)
-    POST   /sessions              {"use_intention": true, "horizon": 10, "priority": ["throttle", "steering"]}
+    POST   /sessions              a two-car session: {"use_intention": true, "horizon": 10,
+                                  "priority": ["throttle", "steering"]}, or a scene session: {"kind": "scene",
+                                  "road": ..., "vehicle": ..., "guardian": ...} (guardian.service.scene)
                                   -> 201 {"session": ID, "secret": SECRET, "next_seq": 0, ...}
-    POST   /sessions/ID/step      {"seq": N, "state": [v_ex, y_e, h, v_Lx], "input": [a_ex, v_ey]}
+    POST   /sessions/ID/step      two-car: {"seq": N, "state": [v_ex, y_e, h, v_Lx], "input": [a_ex, v_ey]};
+                                  scene: {"seq": N, "ego": ..., "cars": [...], "input": [a, steering]}
                                   -> 200 the step record ("t" is N)
-    GET    /sessions/ID           -> 200 {"session", "steps", "next_seq", "active_set", "valid_intentions", ...}
+    POST   /sessions/ID/lane_change  scene sessions: {"ego", "cars", "to": LANE} -> 200 {"allowed", "reason"}
+    GET    /sessions/ID           -> 200 {"session", "kind", "steps", "next_seq", ...}
     DELETE /sessions/ID           -> 200 {"closed": ID}
     GET    /sessions/ID/stream    WebSocket: each text message a step body, each reply its record, in order
     GET    /openapi.json, /docs   the contract (OpenAPI 3.1) and its reference page, served from the package
@@ -17,28 +21,24 @@ A session's requests carry its secret (``Session-Secret``). Every answer is JSON
 """
 from __future__ import annotations
 
-import hmac
 import ipaddress
 import json
-import logging
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, ValidationError, field_validator
 
-from guardian.service.http import RequestHead
 from guardian.service.limits import Limits, json_cost_error
-from guardian.service.sessions import SECRET_HEADER, ServiceError, SessionStore
-
-log = logging.getLogger("guardian.service")
+from guardian.service.sessions import ServiceError
 
 Finite = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 
 
 class SessionSettings(BaseModel):
-    """Body of ``POST /sessions``; every field optional."""
+    """Body of ``POST /sessions`` for a two-car session; every field optional."""
 
     model_config = ConfigDict(extra="forbid")
+    kind: Literal["two_car"] = "two_car"
     use_intention: StrictBool = True
     horizon: StrictInt = Field(10, ge=1, le=1000)
     priority: tuple[Literal["throttle", "steering"], Literal["throttle", "steering"]] = ("throttle", "steering")
@@ -91,6 +91,18 @@ def _validation_message(errors) -> str:
     return "; ".join(parts)
 
 
+def is_scene(raw: bytes, limits: Limits) -> bool:
+    """Does a ``POST /sessions`` body ask for a scene session (``"kind": "scene"``)? Bodies that are not a JSON
+    object are left to the two-car parser, which says what is wrong."""
+    if json_cost_error(raw, limits):
+        return False
+    try:
+        body = json.loads(raw)
+    except ValueError:
+        return False
+    return isinstance(body, dict) and body.get("kind") == "scene"
+
+
 def parse_body(model, raw: bytes, limits: Limits):
     """``raw`` checked for cost, then validated as ``model`` by pydantic's own JSON parser.
 
@@ -111,7 +123,7 @@ def parse_body(model, raw: bytes, limits: Limits):
 # ---- routes ----------------------------------------------------------------------------------------
 
 ALLOWED = {"health": ("GET", "HEAD"), "ready": ("GET", "HEAD"), "sessions": ("GET", "HEAD", "POST"),
-           "session": ("GET", "HEAD", "DELETE"), "step": ("POST",), "stream": ("GET",),
+           "session": ("GET", "HEAD", "DELETE"), "step": ("POST",), "lane_change": ("POST",), "stream": ("GET",),
            "openapi": ("GET", "HEAD"), "docs": ("GET", "HEAD")}
 _FIXED = {"/health": "health", "/ready": "ready", "/sessions": "sessions", "/openapi.json": "openapi",
           "/docs": "docs"}
@@ -126,7 +138,7 @@ def route(path: str) -> tuple[str, str | None] | None:
     if len(parts) >= 3 and parts[0] == "" and parts[1] == "sessions" and parts[2]:
         if len(parts) == 3:
             return "session", parts[2]
-        if len(parts) == 4 and parts[3] in ("step", "stream"):
+        if len(parts) == 4 and parts[3] in ("step", "lane_change", "stream"):
             return parts[3], parts[2]
     return None
 
@@ -152,151 +164,3 @@ def is_loopback_host(value: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
-
-
-class App:
-    """The routes and the checks before them; one per worker.
-
-    Parameters
-    ----------
-    store : SessionStore
-    limits : Limits
-    token : str, optional
-        Every request must send ``Authorization: Bearer TOKEN`` (or the admin token).
-    admin_token : str, optional
-        ``Authorization: Bearer ADMIN`` lists every session and may read or delete any.
-    allow_origins : tuple of str
-        Browser origins allowed to call (a request with another ``Origin`` gets 403).
-    loopback : bool
-        The service listens on loopback only: ``Host`` must then be a loopback name (DNS rebinding).
-    cluster : object, optional
-        The other workers (``workers.Cluster``): totals for /health and /ready, the admin listing.
-    """
-
-    def __init__(self, store: SessionStore, limits: Limits = Limits(), token: str | None = None,
-                 admin_token: str | None = None, allow_origins=(), loopback: bool = True, cluster=None):
-        self.store = store
-        self.limits = limits
-        self.token = token
-        self.admin_token = admin_token
-        self.allow_origins = {o.lower().rstrip("/") for o in allow_origins}
-        self.loopback = loopback
-        self.cluster = cluster
-        self.ready = False       # set once the worker is warmed up
-        self.stopping = False    # set when SIGTERM arrived
-        self.connections = lambda: 0
-        from guardian.service import openapi
-        self._openapi_json = json.dumps(openapi.document()).encode()
-        self._docs_page = openapi.docs_html().encode()
-
-    # ---- checks on the head, before any body is read ----------------------------------------------
-
-    def _bearer(self, headers: dict) -> str | None:
-        value = headers.get("authorization")
-        if value is None:
-            return None
-        scheme, _, given = value.partition(" ")
-        return given.strip() if scheme.lower() == "bearer" else ""
-
-    def is_admin(self, head: RequestHead) -> bool:
-        given = self._bearer(head.headers)
-        return bool(self.admin_token and given and hmac.compare_digest(given, self.admin_token))
-
-    def check_head(self, head: RequestHead) -> Response | None:
-        """The refusal of a request from its head alone (then its body is not read), or None."""
-        h = head.headers
-        if self.token is not None:
-            given = self._bearer(h)
-            if not given or not (hmac.compare_digest(given, self.token) or self.is_admin(head)):
-                return error(401, "missing or wrong token (send 'Authorization: Bearer TOKEN')",
-                             (("www-authenticate", 'Bearer realm="guardian"'),), close=True)
-        if self.loopback and "host" in h and not is_loopback_host(h["host"]):
-            return error(403, f"Host {h['host']!r} is not a loopback name: this service listens on loopback "
-                              "only (a browser page reaching it under another name is DNS rebinding)", close=True)
-        origin = h.get("origin")
-        if origin is not None and origin.strip().lower().rstrip("/") not in self.allow_origins:
-            return error(403, f"Origin {origin!r} is not allowed (guardian serve --allow-origin ORIGIN)", close=True)
-        found = route(head.path)
-        if found is None:
-            return error(404, f"no such path {head.path}", close=head.has_body)
-        allowed = ALLOWED[found[0]]
-        if head.method not in allowed:
-            return error(405, f"{head.method} is not allowed on {head.path}", (("allow", ", ".join(allowed)),),
-                         close=head.has_body)
-        if head.method == "POST":
-            ctype = h.get("content-type", "").split(";", 1)[0].strip().lower()
-            if ctype != "application/json":
-                return error(415, "POST bodies must be JSON: send 'Content-Type: application/json'"
-                                  + (f" (got {h['content-type']!r})" if "content-type" in h else ""),
-                             (("accept-post", "application/json"),), close=True)
-            if head.content_length is None and not head.chunked:
-                return error(411, "a POST needs Content-Length or chunked Transfer-Encoding "
-                                  "(send Content-Length: 0 for an empty body)", close=True)
-        if head.content_length is not None and head.content_length > self.limits.max_body:
-            return error(413, f"body of {head.content_length} bytes exceeds {self.limits.max_body}", close=True)
-        return None
-
-    # ---- the routes ---------------------------------------------------------------------------------
-
-    def handle(self, head: RequestHead, body: bytes):
-        """The response to a whole request that passed ``check_head`` (or an awaitable of it)."""
-        name, sid = route(head.path)
-        try:
-            return getattr(self, "_" + name)(head, sid, body)
-        except ServiceError as exc:
-            return service_error(exc)
-
-    def _health(self, head, sid, body) -> Response:
-        counts = (self.cluster.totals() if self.cluster is not None
-                  else {**self.store.counts(), "workers": 1, "workers_alive": 1})
-        return json_response(200, {"status": "ok", "node": self.store.ids.node, "worker": self.store.ids.worker,
-                                   **counts, "max_sessions": self.store.max_sessions,
-                                   "session_ttl_s": self.store.ttl})
-
-    def _ready(self, head, sid, body) -> Response:
-        ready, workers = (self.cluster.readiness() if self.cluster is not None else (int(self.ready), 1))
-        if self.stopping:
-            return error(503, "stopping: no new sessions (SIGTERM received)", ready=False,
-                         workers_ready=ready, workers=workers)
-        if ready < workers:
-            return error(503, f"{ready} of {workers} workers ready (warming up or restarting)", ready=False,
-                         workers_ready=ready, workers=workers)
-        return json_response(200, {"ready": True, "workers_ready": ready, "workers": workers})
-
-    def _sessions(self, head, sid, body):
-        if head.method == "POST":
-            s = parse_body(SessionSettings, body or b"{}", self.limits)
-            return json_response(201, self.store.create(s.use_intention, s.horizon, s.priority))
-        if not self.is_admin(head):
-            why = ("send the admin token ('Authorization: Bearer ADMIN_TOKEN')" if self.admin_token else
-                   "start the service with --admin-token (or GUARDIAN_ADMIN_TOKEN) and send it")
-            return error(403, f"listing every session needs the admin token: {why}")
-        if self.cluster is None:
-            return json_response(200, {"sessions": self.store.listing()})
-        return self._cluster_listing()
-
-    async def _cluster_listing(self) -> Response:
-        listing, missing = await self.cluster.listing()
-        return json_response(200, {"sessions": listing, **({"workers_missing": missing} if missing else {})})
-
-    def _session(self, head, sid, body) -> Response:
-        secret, admin = head.headers.get(SECRET_HEADER), self.is_admin(head)
-        if head.method == "DELETE":
-            return json_response(200, self.store.close(sid, secret, admin))
-        return json_response(200, self.store.summary(sid, secret, admin))
-
-    def _step(self, head, sid, body) -> Response:
-        self.store.get(sid)  # 404/410/421 before the body is judged
-        req = parse_body(StepRequest, body, self.limits)
-        reply = self.store.step(sid, head.headers.get(SECRET_HEADER), req.seq, req.state, req.input)
-        return Response(200, reply)
-
-    def _stream(self, head, sid, body) -> Response:
-        return error(426, "this path is a WebSocket stream: send a WebSocket handshake",
-                     (("upgrade", "websocket"), ("connection", "Upgrade")))
-
-    def _openapi(self, head, sid, body) -> Response:
-        return Response(200, self._openapi_json)
-
-    def _docs(self, head, sid, body) -> Response:
-        return Response(200, self._docs_page, content_type=b"text/html; charset=utf-8")

@@ -10,9 +10,6 @@ import re
 import resource
 from dataclasses import dataclass
 
-import numpy as np
-
-_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
 _NOT_JSON = re.compile(rb"\b(NaN|Infinity)\b")
 FD_RESERVE = 64  # file descriptors kept free below RLIMIT_NOFILE (logs, the library, handoffs, accept)
 
@@ -56,24 +53,48 @@ class Limits:
             raise ValueError(f"max_connections must be >= 1, got {self.max_connections}")
 
 
+# A JSON string: its quote, then characters or escaped pairs, up to its closing quote or the end of the body.
+# Possessive, so it never backtracks: one pass over the body, however many quotes and backslashes it holds.
+_STRING = re.compile(rb'"(?:[^"\\]++|\\.)*+(?:"|\\?\Z)', re.DOTALL)
+_ALL_BYTES = bytes(range(256))
+_NOT_BRACKETS = bytes(c for c in _ALL_BYTES if c not in b"[]{}")
+_NUMBER_CHARS = b"-+0123456789.eE"
+_NUMBERS_ONLY = bytes(c if c in _NUMBER_CHARS else 0x20 for c in _ALL_BYTES)  # runs of number characters
+
+
+def without_strings(raw: bytes) -> bytes:
+    """``raw`` with the contents of every JSON string removed (``"..."`` becomes ``""``; an unterminated string
+    runs to the end). Without a backslash, every other quote ends a string: a split does it."""
+    if b"\\" in raw:
+        return _STRING.sub(b'""', raw)
+    parts = raw.split(b'"')
+    bare = b'""'.join(parts[0::2])
+    return bare + b'""' if len(parts) % 2 == 0 else bare
+
+
+def nesting_depth(bare: bytes) -> int:
+    """The deepest nesting of arrays and objects in ``bare`` (a body without strings)."""
+    depth = deepest = 0
+    for c in bare.translate(None, _NOT_BRACKETS):
+        depth += 1 if c in (0x5B, 0x7B) else -1
+        deepest = max(deepest, depth)
+    return deepest
+
+
 def json_cost_error(raw: bytes, limits: Limits) -> str | None:
     """Why ``raw`` may not be handed to a JSON parser, or None.
 
     Strings are blanked first so that brackets, digits or words inside them do not count.
     """
-    bare = _STRING.sub(b'""', raw) if b'"' in raw else raw
+    bare = without_strings(raw) if b'"' in raw else raw
     if bare.count(b"[") + bare.count(b"{") > limits.max_depth:  # else the depth cannot exceed it
-        codes = np.frombuffer(bare, dtype=np.uint8)
-        steps = (np.isin(codes, (ord("["), ord("{"))).astype(np.int32)
-                 - np.isin(codes, (ord("]"), ord("}"))).astype(np.int32))
-        depth = int(np.cumsum(steps).max())
+        depth = nesting_depth(bare)
         if depth > limits.max_depth:
             return f"JSON nested {depth} deep; at most {limits.max_depth} levels are accepted"
-    long_number = re.search(rb"[-+0-9.eE]{%d,}" % (limits.max_number_chars + 1), bare)
-    if long_number:
-        return (f"a JSON number of {len(long_number.group())} characters; "
-                f"at most {limits.max_number_chars} are accepted")
-    not_json = _NOT_JSON.search(bare)
+    longest = max(map(len, bare.translate(_NUMBERS_ONLY).split()), default=0)
+    if longest > limits.max_number_chars:
+        return f"a JSON number of {longest} characters; at most {limits.max_number_chars} are accepted"
+    not_json = (b"NaN" in bare or b"Infinity" in bare) and _NOT_JSON.search(bare)
     if not_json:
         return f"malformed JSON body: {not_json.group().decode()} is not a number JSON allows"
     return None

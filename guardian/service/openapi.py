@@ -1,12 +1,20 @@
 """The service's contract: the OpenAPI 3.1 document (``/openapi.json``) and its reference page (``/docs``).
 
-Written out here rather than derived from the routes, so that it can say everything the service
-answers: each operation lists every status it can give, with the body's schema, including the
-answers of the request reader and of the checks before any route (framing 400/414/431, 408, 401
-token, 403 Host/Origin, 413, 415, 503 connection limit, ...). ``tests/guardian/service/test_service_contract.py``
-sends requests that produce each answer and validates every response against this document with
-openapi-core, and the document itself with openapi-spec-validator. ``/docs`` is static HTML rendered
-from the document: no script, no stylesheet from elsewhere, so it works offline.
+Written out here rather than derived from the routes, so that it can say everything the service answers:
+each operation lists every status it can give, with the body's schema and headers, including the answers
+of the server's request reader (``protocol``: framing 400, 408, 413, 414, 417, 431, 501, 505, the 503 of the
+connection cap) and of the checks before any route (``app.ServiceApp.check``: 400 for a repeated credential
+header or an HTTP/1.1 request without Host, 401 token, 403 Host/Origin, the CORS preflight's 204, 405, 411,
+415). The request bodies' schemas are pydantic's own (``model_json_schema`` of the models the routes parse
+with: ``api.SessionSettings``, ``api.StepRequest`` and ``scene``'s), so the document cannot drift from what
+is accepted; the vehicle is split by model into the fields each takes (``scene.MODEL_FIELDS``). The answers'
+schemas are written out (the records are dicts, not models).
+
+``tests/guardian/service/test_service_contract.py`` sends requests that produce every status listed for
+every operation (and checks that no other was seen), validating each response against this document with
+openapi-core, the accepted request bodies too, and the document itself with openapi-spec-validator.
+``/docs`` is static HTML rendered from the document: no script, no stylesheet from elsewhere, so it works
+offline.
 """
 from __future__ import annotations
 
@@ -14,7 +22,11 @@ import html
 import json
 from functools import lru_cache
 
+from guardian.model.decision import LEVELS
+
 NUMBER = {"type": "number"}
+COUNT = {"type": "integer", "minimum": 0}
+SLOT = {"type": "integer", "minimum": 0, "description": "A lane slot: 0 the leftmost lane."}
 
 
 def _pair(description: str) -> dict:
@@ -22,9 +34,13 @@ def _pair(description: str) -> dict:
             "items": False, "description": description}
 
 
+def _ref(name: str) -> dict:
+    return {"$ref": f"#/components/schemas/{name}"}
+
+
 RECORD = {
     "type": "object", "additionalProperties": False,
-    "description": "What the guardian did at one step (guardian.decide.lead.GuardianRecord).",
+    "description": "What the guardian of a two-car session did at one step (guardian.decide.lead.GuardianRecord).",
     "required": ["t", "state", "proposed", "applied", "overridden", "changed", "active_set", "valid_intentions",
                  "identified", "in_invariant_set", "failsafe", "admissible", "throttle_range", "steering_range"],
     "properties": {
@@ -51,33 +67,122 @@ RECORD = {
     },
 }
 
-_SUMMARY_PROPS = {
+_COVERED = {
+    "ego": "The ego's transition since the last step is not the vehicle model's (the bicycle's speed and progress, "
+           "or the point mass's (6.3)-(6.4) with its noise box).",
+    "traffic": "Cars (by id) whose transition since the last step is outside (7.3): progress dt v, acceleration "
+               "within +-guardian.traffic_accel, speed in [0, v_max].",
+    "traffic_reversing_uncovered": "Cars that backed up further than the guardian's cover (reverse_reach).",
+    "lead": "Point mass only: the lead's next speed is explained by no intention model (6.5)/(6.7).",
+}
+
+
+def _coverage_counts(keys, description: str) -> dict:
+    return {"type": "object", "additionalProperties": False, "description": description,
+            "required": [k for k in keys if k != "lead"],
+            "properties": {k: {**COUNT, "description": _COVERED[k]} for k in keys}}
+
+
+SCENE_RECORD = {
+    "type": "object", "additionalProperties": False,
+    "description": "What the guardian of a scene session did at one step (guardian.service.scene.SceneGuardian.step; "
+                   "lanes are slots, 0 the leftmost). Point-mass sessions add the overtake state and the lead's "
+                   "coverage; the texts in reasons and entries[].reason are the decision object's own.",
+    "required": ["t", "applied", "proposed", "overridden", "safety_override", "changed", "level", "failsafe", "reasons",
+                 "lanes", "entered", "refused", "touched", "entries", "in_invariant_set", "clipped_to_model",
+                 "admissible_acceleration", "coverage", "model"],
+    "properties": {
+        "t": {"type": "integer", "minimum": 0, "description": "The step's sequence number (its seq)."},
+        "applied": _pair("The input to apply (bicycle [acceleration m/s^2, steering rad], point mass [a_ex, v_ey])."),
+        "proposed": _pair("The input the step proposed."),
+        "overridden": {"type": "boolean", "description": "applied differs from proposed (changed is not none)."},
+        "safety_override": {"type": "boolean",
+                            "description": "Overridden for safety, not only clipped to the model's bounds."},
+        "changed": {"enum": ["none", "throttle", "steering", "both", "lane_change", "conflict", "failsafe"]},
+        "level": {"enum": list(LEVELS), "description": "The guarantees kept (guardian.model.decision.LEVELS): "
+                                                      "composed, then giving up parts in this order."},
+        "failsafe": {"type": "boolean", "description": "No input keeps self-safety: the hardest braking the model "
+                                                        "allows, steering back towards the ego's lane."},
+        "reasons": {"type": "array", "items": {"type": "string"}, "description": "Why the input was changed."},
+        "lanes": {"type": "array", "items": SLOT,
+                  "description": "Every lane the body may overlap during the step (held or entered responsibly)."},
+        "entered": {"type": "array", "items": SLOT, "description": "Lanes the applied input may enter (checked)."},
+        "refused": {"type": "array", "items": SLOT,
+                    "description": "Lanes the proposed input would have entered; the guardian kept the body out."},
+        "touched": {"type": "array", "items": SLOT,
+                    "description": "Lanes the body overlaps without holding them (their entry refused)."},
+        "entries": {"type": "array", "description": "Every lane entry judged this step ((7.5) responsibility).",
+                    "items": {"type": "object", "additionalProperties": False,
+                              "required": ["lane", "responsible", "reason"],
+                              "properties": {"lane": SLOT, "responsible": {"type": "boolean"},
+                                             "reason": {"type": "string"}}}},
+        "in_invariant_set": {"type": "boolean", "description": "Some input keeps every part of the admissible set."},
+        "clipped_to_model": {"type": "boolean", "description": "The only change is a clip to the model's bounds."},
+        "admissible_acceleration": {"type": "array", "items": _pair("An interval of admissible acceleration."),
+                                    "description": "Admissible accelerations at the applied lateral input."},
+        "coverage": {**_coverage_counts(("ego", "traffic", "traffic_reversing_uncovered", "lead"),
+                                        "Transitions since the last step the model does not cover "
+                                        "(guardian.decide.coverage); totals: since the session began."),
+                     "required": ["ego", "traffic", "traffic_reversing_uncovered", "totals"]},
+        "model": _ref("SceneModel"),
+        "state": {"type": "array", "items": NUMBER, "minItems": 4, "maxItems": 4,
+                  "description": "Point mass only: the overtake state x = (v_ex, y_e, h, v_Lx) the step decided on."},
+    },
+}
+SCENE_RECORD["properties"]["coverage"]["properties"]["totals"] = _coverage_counts(
+    ("ego", "traffic", "traffic_reversing_uncovered", "lead"), "The counts summed over the session's steps.")
+
+_COMMON_SUMMARY = {
     "session": {"type": "string", "pattern": r"^[a-z0-9][a-z0-9-]*\.[0-9]+\.[0-9a-z]+\.[0-9a-f]{16}$",
                 "description": "NODE.WORKER.BOOT.RANDOM: where the session lives."},
     "steps": {"type": "integer", "minimum": 0},
     "next_seq": {"type": "integer", "minimum": 0, "description": "The seq the next step must carry."},
+    "idle_s": NUMBER,
+    "streaming": {"type": "boolean", "description": "A stream is attached (HTTP steps get 409)."},
+}
+_TWO_CAR_SUMMARY = {
+    **_COMMON_SUMMARY,
+    "kind": {"const": "two_car"},
     "active_set": RECORD["properties"]["active_set"],
     "valid_intentions": RECORD["properties"]["valid_intentions"],
     "use_intention": {"type": "boolean"},
     "horizon": {"type": "integer", "minimum": 1},
     "priority": {"type": "array", "items": {"enum": ["throttle", "steering"]}, "minItems": 2, "maxItems": 2},
-    "idle_s": NUMBER,
-    "streaming": {"type": "boolean", "description": "A stream is attached (HTTP steps get 409)."},
-    "last": {"oneOf": [{"$ref": "#/components/schemas/Record"}, {"type": "null"}]},
+    "last": {"oneOf": [_ref("Record"), {"type": "null"}]},
 }
+_SCENE_SUMMARY = {
+    **_COMMON_SUMMARY,
+    "kind": {"const": "scene"},
+    "model": _ref("SceneModel"),
+    "last": {"oneOf": [_ref("SceneRecord"), {"type": "null"}]},
+}
+_SECRET = {"type": "string", "description": "Send it as Session-Secret; shown this once."}
+
+
+def _object(props: dict, description: str = "") -> dict:
+    out = {"type": "object", "additionalProperties": False, "required": list(props), "properties": props}
+    return {**out, "description": description} if description else out
+
 
 SCHEMAS = {
     "Record": RECORD,
-    "Session": {"type": "object", "additionalProperties": False, "required": list(_SUMMARY_PROPS),
-                "properties": _SUMMARY_PROPS},
-    "CreatedSession": {"type": "object", "additionalProperties": False, "required": [*_SUMMARY_PROPS, "secret"],
-                       "properties": {**_SUMMARY_PROPS, "secret": {
-                           "type": "string", "description": "Send it as Session-Secret; shown this once."}}},
+    "SceneRecord": SCENE_RECORD,
+    "SceneModel": {"type": "object", "additionalProperties": False, "required": ["vehicle", "guardian"],
+                   "description": "The model and parameters that decide (the session's vehicle and guardian "
+                                  "options, defaults filled in).",
+                   "properties": {"vehicle": _ref("VehicleSpec"), "guardian": _ref("GuardianSpec")}},
+    "TwoCarSession": _object(_TWO_CAR_SUMMARY, "A two-car session (Chapter 6's overtake pair)."),
+    "SceneSession": _object(_SCENE_SUMMARY, "A scene session (an ego among traffic)."),
+    "Session": {"oneOf": [_ref("TwoCarSession"), _ref("SceneSession")]},
+    "CreatedSession": {"oneOf": [_object({**_TWO_CAR_SUMMARY, "secret": _SECRET}, "A new two-car session."),
+                                 _object({**_SCENE_SUMMARY, "secret": _SECRET}, "A new scene session.")]},
+    "LaneChange": _object({"allowed": {"type": "boolean"},
+                           "reason": {"type": "string", "description": "Why not (empty when allowed)."}},
+                          "May the ego begin this lane change now ((7.5) responsibility of the entry)?"),
     "SessionList": {"type": "object", "additionalProperties": False, "required": ["sessions"], "properties": {
-        "sessions": {"type": "array", "items": {
-            "type": "object", "additionalProperties": False,
-            "required": ["session", "steps", "idle_s", "active_set", "streaming"],
-            "properties": {k: _SUMMARY_PROPS[k] for k in ("session", "steps", "idle_s", "active_set", "streaming")}}},
+        "sessions": {"type": "array", "items": _object(
+            {"session": _COMMON_SUMMARY["session"], "kind": {"enum": ["two_car", "scene"]},
+             "steps": _COMMON_SUMMARY["steps"], "idle_s": NUMBER, "streaming": _COMMON_SUMMARY["streaming"]})},
         "workers_missing": {"type": "array", "items": {"type": "integer"},
                             "description": "Workers that did not answer within 2 s."}}},
     "Closed": {"type": "object", "additionalProperties": False, "required": ["closed"],
@@ -97,33 +202,48 @@ SCHEMAS = {
     "Error": {"type": "object", "additionalProperties": False, "required": ["error"], "properties": {
         "error": {"type": "string", "description": "What was wrong, naming the field, value or limit."},
         "expected_seq": {"type": "integer", "description": "409: the seq the session expects next."},
+        "streaming": {"const": True, "description": "409: a stream is attached to the session (one writer)."},
         "expired": {"const": True, "description": "410: the session expired (idle longer than the TTL)."},
         "restarted": {"const": True, "description": "410: the process that held the session restarted."},
         "node": {"type": "string", "description": "421: the node the session lives on."},
+        "worker": {"type": "integer", "description": "421: the worker the session lives on (a request pipelined "
+                                                    "behind another worker's on one connection)."},
         "retry_after_s": {"type": "number", "description": "503 session limit: when idle sessions expire."},
         "ready": {"const": False}, "workers_ready": {"type": "integer"}, "workers": {"type": "integer"}}},
 }
 
 _ERRORS = {
-    "400": "Malformed: a framing error of the request (then Connection: close), malformed JSON, JSON nested "
-           "deeper than 32 or a number longer than 40 characters, NaN or Infinity.",
+    "400": "Malformed: a framing error of the request ('invalid HTTP request: ...', then Connection: close), an "
+           "HTTP/1.1 request without Host, a Host, Origin, Authorization, Session-Secret, Content-Type or "
+           "Content-Length header given twice; or a body that is malformed JSON, nested deeper than 32, with a "
+           "number longer than 40 characters, NaN or Infinity.",
     "401": "Missing or wrong token (only when the service has one): send Authorization: Bearer TOKEN.",
     "403": "Host is not a loopback name (loopback service), Origin is not allowed (--allow-origin), a missing "
            "or wrong Session-Secret, or a listing without the admin token.",
-    "404": "No such path, or an unknown session.",
-    "405": "Method not allowed on this path; Allow lists the methods.",
+    "404": "An unknown session (any path this document does not list is answered 404 too).",
+    "405": "A method this path does not have (listed under the path's first operation, and under OPTIONS for an "
+           "OPTIONS that is not a CORS preflight); Allow lists the methods.",
     "408": "The request did not arrive whole within --read-timeout of its first byte (Connection: close).",
     "409": "Sequence conflict (a gap, an older step, or the last step with another body; expected_seq "
-           "says which is next), or the session has a stream attached (one writer).",
+           "says which is next), or the session has a stream attached (streaming: true; one writer).",
     "410": "The session expired (expired: true), or the process that held it restarted (restarted: true).",
     "411": "A POST without Content-Length or chunked Transfer-Encoding.",
-    "413": "The body is longer than --max-body (refused from Content-Length, or as soon as chunks exceed it).",
+    "413": "The body is longer than --max-body (refused from Content-Length, on any method, or as soon as chunks "
+           "exceed it; Connection: close).",
     "414": "The request target is longer than 8 KiB, or the request line than the head limit.",
     "415": "A POST whose Content-Type is not application/json (Accept-Post says which is).",
     "417": "An Expect other than 100-continue.",
-    "421": "The session lives on another node: route /sessions/NODE.* to that node.",
-    "422": "The body does not match the schema (the field is named), or the state is outside the model's "
-           "domain (v_ex < 0, or v_Lx outside the lead model's range).",
+    "421": "Misdirected: the session lives on another node (node: route /sessions/NODE.* to that node), or on "
+           "another worker of this node and the request was pipelined behind another worker's request on the "
+           "same connection (worker: send it on its own turn).",
+    "422": "The body does not match the schema (the field is named), or it does and the guardian cannot "
+           "guarantee it: a two-car state outside the model's domain (v_ex < 0, v_Lx outside the lead model's "
+           "range); a vehicle model other than bicycle and point_mass, a field of the other model, bounds the "
+           "service's sets were not computed for (point_mass: dt, acceleration, lateral_speed of its library, "
+           "a library that lets the ego wait behind its lead, a straight road of >= 2 lanes whose lane_width "
+           "is 2 left_lane_y lateral_scale; bicycle: max_acceleration = guardian.traffic_accel), a road that "
+           "cannot be built; a step the model cannot take (a bicycle step naming a lead, a point-mass step "
+           "without its lead or with ego fields it has not).",
     "426": "The stream path without a WebSocket handshake.",
     "431": "More than 100 header fields, or a request head over 16 KiB.",
     "500": "A bug: logged by the service (Connection: close).",
@@ -132,24 +252,32 @@ _ERRORS = {
            "/ready while warming up, restarting a worker or stopping.",
     "505": "An HTTP version other than 1.1 and 1.0.",
 }
-_ALWAYS = ["400", "401", "403", "408", "414", "417", "431", "500", "501", "503", "505"]
+# answered by the reader and the checks before any route, whatever the operation
+_ALWAYS = ["400", "401", "403", "408", "413", "414", "417", "431", "501", "503", "505"]
 _RETRY_AFTER = {"Retry-After": {"schema": {"type": "string"}, "description": "Seconds."}}
+_CORS = {"Access-Control-Allow-Origin": {"$ref": "#/components/headers/AllowOrigin"},
+         "Vary": {"$ref": "#/components/headers/Vary"}}
+HEADERS = {
+    "AllowOrigin": {"schema": {"type": "string"},
+                    "description": "The request's Origin, when it is allowed (--allow-origin)."},
+    "Vary": {"schema": {"const": "Origin"}, "description": "With Access-Control-Allow-Origin."},
+}
 
 
 def _error(code: str, headers: dict | None = None) -> dict:
-    out = {"description": _ERRORS[code], "content": {"application/json": {"schema": {"$ref": "#/components/schemas/Error"}}}}
-    if headers:
-        out["headers"] = headers
-    return out
+    return {"description": _ERRORS[code], "headers": {**(headers or {}), **_CORS},
+            "content": {"application/json": {"schema": _ref("Error")}}}
 
 
-def _ok(description: str, schema: str) -> dict:
-    return {"description": description, "content": {"application/json": {"schema": {"$ref": f"#/components/schemas/{schema}"}}}}
+def _ok(description: str, schema: dict | str) -> dict:
+    return {"description": description, "headers": dict(_CORS),
+            "content": {"application/json": {"schema": _ref(schema) if isinstance(schema, str) else schema}}}
 
 
-def _responses(ok: dict, *codes: str) -> dict:
+def _responses(ok: dict, *codes: str, bug: bool = True) -> dict:
+    """``ok`` and the errors: those of the checks before any route, ``codes``, and 500 when a route runs."""
     out = dict(ok)
-    for code in sorted(set(_ALWAYS) | set(codes)):
+    for code in sorted(set(_ALWAYS) | set(codes) | ({"500"} if bug else set())):
         headers = None
         if code == "405":
             headers = {"Allow": {"schema": {"type": "string"}, "description": "The methods this path allows."}}
@@ -157,10 +285,38 @@ def _responses(ok: dict, *codes: str) -> dict:
             headers = {"WWW-Authenticate": {"schema": {"type": "string"}}}
         elif code == "415":
             headers = {"Accept-Post": {"schema": {"type": "string"}}}
+        elif code == "426":
+            headers = {"Upgrade": {"schema": {"const": "websocket"}}}
         elif code == "503":
             headers = _RETRY_AFTER
         out[code] = _error(code, headers)
     return out
+
+
+def _preflight(path: str) -> dict:
+    """The CORS preflight of a path: answered before any route (no token needed), never a 500."""
+    name = "preflight" + "".join(p.strip("{}").replace(".", "_").replace("_", " ").title().replace(" ", "")
+                                 for p in path.split("/"))
+    must = {"required": True}
+    return {"operationId": name, "summary": "CORS preflight (a browser asks before a cross-origin request).",
+            "description": "An OPTIONS with an allowed Origin and Access-Control-Request-Method is answered 204 with "
+                           "the path's methods, the request headers a browser may send (authorization, "
+                           "content-type, session-secret) and how long to remember them; a preflight from an "
+                           "Origin not allowed gets 403, an OPTIONS that is not a preflight 405.",
+            "security": [{}],
+            "parameters": [{"name": "Origin", "in": "header", "required": True, "schema": {"type": "string"}},
+                           {"name": "Access-Control-Request-Method", "in": "header", "required": True,
+                            "schema": {"type": "string"}}],
+            "responses": _responses({"204": {"description": "The preflight's answer.", "headers": {
+                "Access-Control-Allow-Origin": {**HEADERS["AllowOrigin"], **must},
+                "Vary": {**HEADERS["Vary"], **must},
+                "Access-Control-Allow-Methods": {"schema": {"type": "string"}, **must,
+                                                 "description": "The path's methods (not HEAD), comma-separated."},
+                "Access-Control-Allow-Headers": {"schema": {"type": "string"}, **must,
+                                                 "description": "authorization, content-type, session-secret"},
+                "Access-Control-Max-Age": {"schema": {"type": "string"}, **must,
+                                           "description": "Seconds a browser may keep this answer (600)."}}}},
+                "405", bug=False)}
 
 
 SID = {"name": "sid", "in": "path", "required": True, "schema": {"type": "string"},
@@ -168,90 +324,190 @@ SID = {"name": "sid", "in": "path", "required": True, "schema": {"type": "string
 SECRET = [{"sessionSecret": []}, {"sessionSecret": [], "bearer": []}]
 SECRET_OR_ADMIN = [*SECRET, {"bearer": []}]
 OPEN = [{}, {"bearer": []}]
+STREAM = (
+    "Handshake refusals are HTTP answers: 400 a repeated credential header, 401 token, 403 Host/Origin/secret, "
+    "409 the session already has a stream. An unknown, expired, restarted or misrouted session is accepted, told "
+    "{\"error\", \"status\"} and closed with 4000 + status (4404, 4410, 4421). Each message is a step body of the "
+    "session's kind (StepRequest or SceneStep), each reply its record (Record or SceneRecord) or {\"error\", "
+    "\"status\", ...} with the status HTTP would give, in message order. A browser's WebSocket cannot send "
+    "headers: a handshake from an allowed Origin without Session-Secret (and, when the service has a token, "
+    "without Authorization) is accepted, and its first message must be the credentials {\"secret\": SECRET, "
+    "\"token\": TOKEN} (token only when the service has one); it is answered {\"authenticated\": true, "
+    "\"session\": ID}, or told {\"error\", \"status\"} and closed with 4403 (no or wrong secret), 4401 (missing "
+    "or wrong token) or 4409 (another stream attached meanwhile); no credentials within --stream-idle-timeout: "
+    "closed 4408. A message over --max-body gets {\"status\": 413} and the stream stays open; one over 16 x "
+    "--max-body closes it with 1009. No message for --stream-idle-timeout: closed 4408. A deleted session "
+    "closes its stream with 4404, a stopping service with 1012.")
+
+
+def _strip_titles(schema, names: bool = False):
+    """pydantic's schemas without the ``title`` it derives from each field's name (noise in a reference);
+    ``names``: ``schema`` maps field names to schemas (a field called title stays)."""
+    if isinstance(schema, dict):
+        return {k: _strip_titles(v, k == "properties" and not names) for k, v in schema.items()
+                if names or k != "title"}
+    if isinstance(schema, list):
+        return [_strip_titles(v) for v in schema]
+    return schema
+
+
+def _not_null(schema: dict) -> dict:
+    """An optional field's schema without its ``null`` alternative and its default (for a model that needs it)."""
+    out = {k: v for k, v in schema.items() if k not in ("anyOf", "default")}
+    if "anyOf" in schema:
+        alternatives = [a for a in schema["anyOf"] if a != {"type": "null"}]
+        out = {**alternatives[0], **out} if len(alternatives) == 1 else {"anyOf": alternatives, **out}
+    return out
+
+
+def _vehicles(spec: dict) -> dict:
+    """``VehicleSpec`` as one schema per supervised model, each with the fields it takes (``MODEL_FIELDS`` required,
+    ``MODEL_OPTIONS`` optional): a field of another model, or another model, is refused."""
+    from guardian.service.scene import MODEL_FIELDS, MODEL_OPTIONS
+
+    props = spec["properties"]
+    default = props["model"].get("default")
+    per_model = {f for fields in (*MODEL_FIELDS.values(), *MODEL_OPTIONS.values()) for f in fields}
+    common = [f for f in props if f != "model" and f not in per_model]
+    variants = []
+    for model, fields in MODEL_FIELDS.items():
+        model_schema = {"const": model, **({"default": model} if model == default else {})}
+        variants.append({
+            "type": "object", "additionalProperties": False, "title": model,
+            "required": [*([] if model == default else ["model"]), *(f for f in common if f in spec["required"]),
+                         *fields],
+            "properties": {"model": model_schema, **{f: props[f] for f in common},
+                           **{f: _not_null(props[f]) for f in (*fields, *MODEL_OPTIONS[model])}}})
+    return {"description": spec["description"], "oneOf": variants}
+
+
+def _request_schemas() -> dict:
+    """The request bodies' schemas, pydantic's, with the models they nest (as components)."""
+    from pydantic.json_schema import models_json_schema
+
+    from guardian.service.api import SessionSettings, StepRequest
+    from guardian.service.scene import LaneChangeQuery, SceneSettings, SceneStep
+
+    models = (SessionSettings, StepRequest, SceneSettings, SceneStep, LaneChangeQuery)
+    _, top = models_json_schema([(m, "validation") for m in models], ref_template="#/components/schemas/{model}")
+    defs = _strip_titles(top["$defs"])
+    defs["VehicleSpec"] = _vehicles(defs["VehicleSpec"])
+    return defs
 
 
 def _body(schema: dict, required: bool) -> dict:
     return {"required": required, "content": {"application/json": {"schema": schema}}}
 
 
+def _with_preflights(paths: dict) -> dict:
+    for path, item in paths.items():
+        item["options"] = _preflight(path)
+    return paths
+
+
 @lru_cache(maxsize=1)
 def document() -> dict:
     """The OpenAPI 3.1 document of the service."""
-    from guardian.service.api import SessionSettings, StepRequest
-
-    settings_schema = SessionSettings.model_json_schema()
-    step_schema = StepRequest.model_json_schema()
+    requests = _request_schemas()
+    session_ops = ("404", "405", "410", "421")
+    body_errors = ("404", "405", "409", "410", "411", "415", "421", "422")
+    paths = {
+        "/health": {"get": {"operationId": "health", "summary": "Liveness and counts (all workers).",
+                            "responses": _responses({"200": _ok("Alive.", "Health")}, "405")}},
+        "/ready": {"get": {"operationId": "ready",
+                           "summary": "200 when every worker is warmed up and none is stopping, else 503.",
+                           "responses": _responses({"200": _ok("Ready for traffic.", "Ready")}, "405")}},
+        "/sessions": {
+            "get": {"operationId": "listSessions", "summary": "Every live session (admin token only).",
+                    "security": [{"bearer": []}],
+                    "responses": _responses({"200": _ok("The sessions of every worker.", "SessionList")}, "405")},
+            "post": {"operationId": "createSession",
+                     "summary": "A new session (its guardian and secret): two-car (the default), or a scene "
+                                "(\"kind\": \"scene\").",
+                     "description": "A two-car session supervises Chapter 6's overtake pair from the state "
+                                    "(v_ex, y_e, h, v_Lx); a scene session an ego among traffic on a road, for the "
+                                    "vehicle model its driving stack declares (bicycle or point_mass). A vehicle "
+                                    "the guardian cannot guarantee is refused with 422 saying why.",
+                     "requestBody": _body({"oneOf": [_ref("SessionSettings"), _ref("SceneSettings")]}, False),
+                     "responses": _responses({"201": _ok("Created; the secret is shown this once.",
+                                                         "CreatedSession")},
+                                             "411", "415", "422")}},
+        "/sessions/{sid}": {
+            "parameters": [SID],
+            "get": {"operationId": "getSession", "summary": "The session's state and last record.",
+                    "security": SECRET_OR_ADMIN,
+                    "responses": _responses({"200": _ok("The session (two-car or scene).", "Session")}, *session_ops)},
+            "delete": {"operationId": "deleteSession", "summary": "End the session (its stream closes, 4404).",
+                       "security": SECRET_OR_ADMIN,
+                       "responses": _responses({"200": _ok("Closed.", "Closed")}, "404", "410", "421")}},
+        "/sessions/{sid}/step": {
+            "parameters": [SID],
+            "post": {"operationId": "step", "summary": "Supervise one step (seq = the session's next_seq).",
+                     "description": "The body is the session's kind's: StepRequest (two-car) or SceneStep (scene); "
+                                    "the answer its record.",
+                     "security": SECRET,
+                     "requestBody": _body({"oneOf": [_ref("StepRequest"), _ref("SceneStep")]}, True),
+                     "responses": _responses({"200": _ok("The record (also for a retry of the last step).",
+                                                         {"oneOf": [_ref("Record"), _ref("SceneRecord")]})},
+                                             *body_errors)}},
+        "/sessions/{sid}/lane_change": {
+            "parameters": [SID],
+            "post": {"operationId": "laneChange",
+                     "summary": "May the ego of a scene session begin a lane change to lane `to` now?",
+                     "description": "For a driving stack whose own controller steers lane changes (a bicycle with "
+                                    "meta): judged once, before the change starts; nothing of the session changes. "
+                                    "409 for a two-car or a point-mass session (their lane changes are judged in "
+                                    "their steps). A lane the road does not have is answered allowed: false.",
+                     "security": SECRET, "requestBody": _body(_ref("LaneChangeQuery"), True),
+                     "responses": _responses({"200": _ok("The verdict.", "LaneChange")}, *body_errors)}},
+        "/sessions/{sid}/stream": {
+            "parameters": [SID],
+            "get": {"operationId": "stream",
+                    "summary": "WebSocket: each message a step body, each reply its record or "
+                               "{\"error\", \"status\"}.",
+                    "description": STREAM, "security": SECRET,
+                    "responses": {"101": {"description": "Switching Protocols: the stream is open."},
+                                  **_responses({}, "405", "409", "426")}}},
+        "/openapi.json": {"get": {"operationId": "openapi", "summary": "This document.",
+                                  "responses": _responses({"200": _ok("OpenAPI 3.1.", {"type": "object"})}, "405")}},
+        "/docs": {"get": {"operationId": "docs", "summary": "This document as a page (no scripts, offline).",
+                          "responses": _responses({"200": {"description": "HTML.", "headers": dict(_CORS), "content": {
+                              "text/html": {"schema": {"type": "string"}}}}}, "405")}},
+    }
     return {
         "openapi": "3.1.0",
-        "info": {"title": "guardian", "version": "3",
-                 "description": "The intention-aware safety supervisor of Chapter 6 as a service: one guardian "
-                                "per session. Steps carry sequence numbers (a retry is answered from the stored "
-                                "answer, a gap gets 409); a session's secret is required to step, read or delete "
-                                "it. See docs/service.md."},
+        "info": {"title": "guardian", "version": "4",
+                 "description": "The guardian as a service: one guardian per session, either Chapter 6's "
+                                "intention-aware supervisor of an overtake pair (two-car sessions) or an ego among "
+                                "traffic on a road (scene sessions: a bicycle or the overtake point mass). Steps "
+                                "carry sequence numbers (a retry is answered from the stored answer, a gap gets "
+                                "409); a session's secret is required to step, read or delete it. Browsers: an "
+                                "allowed Origin (--allow-origin) gets Access-Control-Allow-Origin on every answer "
+                                "and its preflights are answered (OPTIONS). See docs/service.md."},
         "components": {
-            "schemas": SCHEMAS,
+            "schemas": {**SCHEMAS, **requests},
+            "headers": HEADERS,
             "securitySchemes": {
                 "bearer": {"type": "http", "scheme": "bearer",
                            "description": "The service token (guardian serve --token), required on every request "
-                                          "when set; or the admin token (--admin-token), which also lists every "
-                                          "session and may read or delete any."},
+                                          "but a CORS preflight when set (a browser's stream may send it in its "
+                                          "first message); or the admin token (--admin-token), which also lists "
+                                          "every session and may read or delete any."},
                 "sessionSecret": {"type": "apiKey", "in": "header", "name": "Session-Secret",
-                                  "description": "The secret POST /sessions returned for this session."}},
+                                  "description": "The secret POST /sessions returned for this session (a browser's "
+                                                 "stream sends it in its first message instead)."}},
         },
         "security": OPEN,
-        "paths": {
-            "/health": {"get": {"operationId": "health", "summary": "Liveness and counts (all workers).",
-                                "responses": _responses({"200": _ok("Alive.", "Health")}, "405")}},
-            "/ready": {"get": {"operationId": "ready",
-                               "summary": "200 when every worker is warmed up and none is stopping, else 503.",
-                               "responses": _responses({"200": _ok("Ready for traffic.", "Ready")}, "405")}},
-            "/sessions": {
-                "get": {"operationId": "listSessions", "summary": "Every live session (admin token only).",
-                        "security": [{"bearer": []}],
-                        "responses": _responses({"200": _ok("The sessions of every worker.", "SessionList")}, "405")},
-                "post": {"operationId": "createSession", "summary": "A new session (its guardian and secret).",
-                         "requestBody": _body(settings_schema, False),
-                         "responses": _responses({"201": _ok("Created; the secret is shown this once.",
-                                                             "CreatedSession")},
-                                                 "405", "411", "413", "415", "422")}},
-            "/sessions/{sid}": {
-                "parameters": [SID],
-                "get": {"operationId": "getSession", "summary": "The session's state and last record.",
-                        "security": SECRET_OR_ADMIN,
-                        "responses": _responses({"200": _ok("The session.", "Session")},
-                                                "404", "405", "410", "421")},
-                "delete": {"operationId": "deleteSession", "summary": "End the session (its stream closes, 4404).",
-                           "security": SECRET_OR_ADMIN,
-                           "responses": _responses({"200": _ok("Closed.", "Closed")}, "404", "405", "410", "421")}},
-            "/sessions/{sid}/step": {
-                "parameters": [SID],
-                "post": {"operationId": "step", "summary": "Supervise one step (seq = the session's next_seq).",
-                         "security": SECRET, "requestBody": _body(step_schema, True),
-                         "responses": _responses({"200": _ok("The record (also for a retry of the last step).",
-                                                             "Record")},
-                                                 "404", "405", "409", "410", "411", "413", "415", "421", "422")}},
-            "/sessions/{sid}/stream": {
-                "parameters": [SID],
-                "get": {"operationId": "stream",
-                        "summary": "WebSocket: each message a step body, each reply its record or "
-                                   "{\"error\", \"status\"}.",
-                        "description": "Handshake refusals are HTTP answers: 401 token, 403 Host/Origin/secret, "
-                                       "409 the session already has a stream. An unknown, expired, restarted or "
-                                       "misrouted session is accepted, told {\"error\", \"status\"} and closed with "
-                                       "4000 + status. A message over --max-body gets {\"status\": 413} and the "
-                                       "stream stays open; one over 16 x --max-body closes it with 1009. No message "
-                                       "for --stream-idle-timeout: closed 4408.",
-                        "security": SECRET,
-                        "responses": {"101": {"description": "Switching Protocols: the stream is open."},
-                                      **{k: v for k, v in _responses({}, "405", "409", "426").items()}}}},
-            "/openapi.json": {"get": {"operationId": "openapi", "summary": "This document.",
-                                      "responses": _responses({"200": {"description": "OpenAPI 3.1.", "content": {
-                                          "application/json": {"schema": {"type": "object"}}}}}, "405")}},
-            "/docs": {"get": {"operationId": "docs", "summary": "This document as a page (no scripts, offline).",
-                              "responses": _responses({"200": {"description": "HTML.", "content": {
-                                  "text/html": {"schema": {"type": "string"}}}}}, "405")}},
-        },
+        "paths": _with_preflights(paths),
     }
+
+
+def _schema_name(schema: dict) -> str:
+    if "$ref" in schema:
+        return schema["$ref"].rsplit("/", 1)[-1]
+    if "oneOf" in schema:
+        return " | ".join(_schema_name(s) for s in schema["oneOf"])
+    return schema.get("type", "")
 
 
 def _schema_html(schema) -> str:
@@ -263,10 +519,10 @@ def docs_html() -> str:
     """The reference page: every operation, its parameters, body and answers, from ``document()``."""
     doc = document()
     out = ["<!doctype html><html lang=en><head><meta charset=utf-8><title>guardian service API</title>",
-           "<style>body{font:15px/1.45 system-ui,sans-serif;max-width:60em;margin:2em auto;padding:0 1em}"
-           "code,pre{background:#f4f4f4}pre{padding:.5em;overflow:auto;font-size:12px}"
-           "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:.2em .5em;vertical-align:top}"
-           "h2{border-top:2px solid #333;padding-top:.5em}details{margin:.3em 0}</style></head><body>",
+           ("<style>body{font:15px/1.45 system-ui,sans-serif;max-width:60em;margin:2em auto;padding:0 1em}"
+            "code,pre{background:#f4f4f4}pre{padding:.5em;overflow:auto;font-size:12px}"
+            "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:.2em .5em;vertical-align:top}"
+            "h2{border-top:2px solid #333;padding-top:.5em}details{margin:.3em 0}</style></head><body>"),
            f"<h1>{html.escape(doc['info']['title'])} API (version {html.escape(doc['info']['version'])})</h1>",
            f"<p>{html.escape(doc['info']['description'])}</p>",
            "<p>The machine-readable contract: <a href=\"openapi.json\">openapi.json</a> (OpenAPI 3.1).</p>",
@@ -290,16 +546,21 @@ def docs_html() -> str:
                 req = "required" if op["requestBody"]["required"] else "optional"
                 out.append(f"<details open><summary>Request body ({req}, application/json)</summary>"
                            f"{_schema_html(schema)}</details>")
-            out.append("<table><tr><th>Status</th><th>Meaning</th><th>Body</th></tr>")
+            for p in [*item.get("parameters", []), *op.get("parameters", [])]:
+                out.append(f"<p>Parameter <code>{html.escape(p['name'])}</code> ({html.escape(p['in'])}"
+                           f"{', required' if p.get('required') else ''}): {html.escape(p.get('description', ''))}</p>")
+            out.append("<table><tr><th>Status</th><th>Meaning</th><th>Body</th><th>Headers</th></tr>")
             for code, resp in op["responses"].items():
                 content = resp.get("content", {})
-                body = ", ".join(f"{t}: {c['schema'].get('$ref', '').rsplit('/', 1)[-1] or c['schema'].get('type', '')}"
-                                 for t, c in content.items())
+                body = ", ".join(f"{t}: {_schema_name(c['schema'])}" for t, c in content.items())
+                headers = ", ".join(name + (" (always)" if h.get("required") else "")
+                                    for name, h in resp.get("headers", {}).items())
                 out.append(f"<tr><td>{code}</td><td>{html.escape(resp['description'])}</td>"
-                           f"<td>{html.escape(body)}</td></tr>")
+                           f"<td>{html.escape(body)}</td><td>{html.escape(headers)}</td></tr>")
             out.append("</table>")
     out.append("<h2>Schemas</h2>")
     for name, schema in doc["components"]["schemas"].items():
-        out.append(f"<details><summary>{html.escape(name)}</summary>{_schema_html(schema)}</details>")
+        out.append(f"<details id=\"schema-{html.escape(name)}\"><summary>{html.escape(name)}</summary>"
+                   f"{_schema_html(schema)}</details>")
     out.append("</body></html>")
     return "".join(out)

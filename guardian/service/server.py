@@ -1,34 +1,50 @@
 """Running the service: options, the listening socket, one worker's event loop, warm-up, shutdown.
 
-A worker is one process with one asyncio event loop: guardian steps are short CPU work (~0.2 ms),
-so they run on the loop, in arrival order, with no locks. ``guardian serve --workers N`` runs N
-such processes on one listening socket (``workers.py``). The socket is bound before any worker
-starts, so ``--port 0`` knows its port and the listen backlog is ours; nothing is accepted before the
-library is loaded and warmed up (``warm_up``). SIGTERM and SIGINT stop accepting, answer the requests
-in flight with ``Connection: close``, close the streams (1001), then exit 0.
+A worker is one process serving the ASGI application (``guardian.service.app``) with uvicorn (httptools)
+on one asyncio event loop: guardian steps are short CPU work (~0.2 ms), so they run on the loop, in arrival
+order, with no locks. ``guardian serve --workers N`` runs N such processes on one listening socket
+(``workers.py``). The socket is bound before any worker starts, so ``--port 0`` knows its port and the listen
+backlog is ours; nothing is accepted before the library is loaded and warmed up (``warm_up``). SIGTERM and
+SIGINT stop accepting, answer the requests in flight with ``Connection: close``, close the streams (1012),
+then exit 0.
 """
 from __future__ import annotations
 
 import asyncio
+import functools
 import ipaddress
 import logging
 import os
+import signal
 import socket
 import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import uvicorn
 
-from guardian.service.api import App, StepRequest, SessionSettings
+from guardian.service.api import SessionSettings, StepRequest
+from guardian.service.app import ServiceApp
 from guardian.service.limits import Limits
-from guardian.service.protocol import Connection
+from guardian.service.protocol import GuardianHttpProtocol
 from guardian.service.sessions import NODE_NAME, SessionIds, SessionStore
 
 TOKEN_ENV = "GUARDIAN_TOKEN"
 ADMIN_TOKEN_ENV = "GUARDIAN_ADMIN_TOKEN"
 log = logging.getLogger("guardian.service")
-READ_BUFFER = 64 * 1024  # bytes per read (one buffer per worker: reads are copied out at once)
+
+
+class _DeniedHandshakes(logging.Filter):
+    """uvicorn's sans-I/O WebSocket protocol logs "returned without completing handshake" after a handshake
+    the app refused with an HTTP answer (the ASGI denial response), which it did send: not an error here."""
+
+    def filter(self, record) -> bool:
+        return "without completing handshake" not in record.getMessage()
+
+
+logging.getLogger("uvicorn.error").addFilter(_DeniedHandshakes())
+SWEEP_PERIOD = 0.25  # seconds between the sweeper's rounds (expired sessions, the workers' counters)
 
 
 @dataclass(frozen=True)
@@ -120,6 +136,25 @@ def warm_up(library, steps: int = 40) -> None:
             x = model.system.step(x, applied, np.zeros(4))
     StepRequest.model_validate_json(b'{"seq": 0, "state": [25, 0, 30, 22], "input": [0, 0]}')
     SessionSettings.model_validate_json(b"{}")
+    _warm_scene(library, steps)
+
+
+def _warm_scene(library, steps: int) -> None:
+    """A scene session driven along a three-lane road beside a car: the bicycle guardian's kernels."""
+    from guardian.service.scene import SceneGuardian, SceneSettings, SceneStep
+
+    settings = SceneSettings.model_validate_json(
+        b'{"kind": "scene", "road": {"lanes": 3, "lane_width": 4}, "vehicle": {"length": 5, "width": 2, '
+        b'"max_steering": 0.785, "max_acceleration": 6, "dt": 0.0667}}')
+    guardian = SceneGuardian(settings, library)
+    for k in range(steps):
+        x = 20.0 * k * 0.0667
+        guardian.step(SceneStep.model_validate({"seq": k, "ego": {"x": x, "y": 4.0, "speed": 20.0},
+                                                "cars": [{"id": "a", "x": x + 15.0, "y": 4.0, "speed": 18.0,
+                                                          "length": 5, "width": 2},
+                                                         {"id": "b", "x": x - 3.0, "y": 8.0, "speed": 21.0,
+                                                          "length": 5, "width": 2}],
+                                                "input": [1.0, 0.02]}))
 
 
 class _AcceptLog:
@@ -144,88 +179,88 @@ class _AcceptLog:
 
 
 class Server:
-    """One worker: the app, its sessions, its connections and their sweeper, on one event loop."""
+    """One worker: the app and its sessions, served by uvicorn on one event loop."""
 
     def __init__(self, library, config: ServiceConfig, ids: SessionIds | None = None, router=None, cluster=None):
         self.config = config
         self.limits = config.limits
         self.store = SessionStore(library, ttl=config.session_ttl, max_sessions=config.max_sessions,
                                   ids=ids or SessionIds.starting_now(config.node))
-        self.app = App(self.store, config.limits, config.token, config.admin_token, config.allow_origins,
-                       loopback=is_loopback(config.host), cluster=cluster)
-        self.app.connections = lambda: len(self.connections)
+        self.app = ServiceApp(self.store, config.limits, config.token, config.admin_token, config.allow_origins,
+                              loopback=is_loopback(config.host), cluster=cluster)
         self.router = router
         self.cluster = cluster
-        self.connections: set[Connection] = set()
-        self.refusing: set[Connection] = set()  # over the connection cap: answered 503, being drained
-        self.tasks: set = set()
         self.connection_cap = config.limits.connection_cap()
         self.refused = 0
         self.handed_off = 0
-        self.read_buffer = memoryview(bytearray(READ_BUFFER))  # every connection reads into it (one loop)
         self.started = threading.Event()
+        self.uvicorn = uvicorn.Server(uvicorn.Config(
+            self.app, http=functools.partial(GuardianHttpProtocol, service=self), ws="websockets-sansio", lifespan="off",
+            log_level="warning", access_log=False, proxy_headers=False, server_header=False,
+            timeout_keep_alive=config.limits.keepalive_timeout, ws_max_size=config.limits.max_stream_frame,
+            ws_ping_interval=None, ws_per_message_deflate=False, timeout_graceful_shutdown=config.graceful_timeout,
+            backlog=config.backlog))
+        self.uvicorn.config.load()
+        self.app.connections = lambda: len(self.uvicorn.server_state.connections)
         self._loop = None
-        self._stop = None
-        self._now = time.monotonic()
 
-    def now(self) -> float:
-        return self._now
+    @property
+    def connections(self) -> set:
+        return self.uvicorn.server_state.connections
 
     def adopt(self, sock: socket.socket, initial: bytes, placed_by: int | None = None) -> None:
         """Serve a connection another worker handed over (with the bytes it had read); ``placed_by``: the
         worker that sent a new session's request here (told when it is answered)."""
-        asyncio.ensure_future(self._loop.connect_accepted_socket(
-            lambda: Connection(self, initial, placed_by), sock))
+        config, state = self.uvicorn.config, self.uvicorn.server_state
+
+        def protocol():
+            return GuardianHttpProtocol(config, state, {}, service=self, initial=initial, placed_by=placed_by)
+        asyncio.ensure_future(self._loop.connect_accepted_socket(protocol, sock))
 
     async def serve(self, sock: socket.socket) -> None:
         """Accept on ``sock`` until ``request_stop``; then shut down gracefully."""
         self._loop = asyncio.get_running_loop()
         self._loop.set_exception_handler(_AcceptLog())
-        self._stop = asyncio.Event()
-        server = await self._loop.create_server(lambda: Connection(self), sock=sock, backlog=self.config.backlog)
+        main = threading.current_thread() is threading.main_thread()
+        # uvicorn catches SIGINT/SIGTERM while it serves and raises them again once it has shut down: give it
+        # handlers that do nothing then (our stop is the graceful shutdown itself)
+        previous = {sig: signal.signal(sig, lambda *a: None) for sig in (signal.SIGINT, signal.SIGTERM)} if main else {}
         sweeper = asyncio.ensure_future(self._sweep())
         if self.router is not None:
             self.router.start(self)
+        try:
+            await self.uvicorn.serve(sockets=[sock])
+        finally:
+            sweeper.cancel()
+            if self.router is not None:
+                self.router.stop()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def request_stop(self) -> None:
+        self.app.stopping = True
+        if self.cluster is not None:
+            self.cluster.set_ready(False)
+        self.uvicorn.should_exit = True
+
+    async def _sweep(self) -> None:
+        while not self.uvicorn.started:
+            await asyncio.sleep(0.01)
         self.app.ready = True
         if self.cluster is not None:
             self.cluster.set_ready(True)
         self.started.set()
-        try:
-            await self._stop.wait()
-        finally:
-            self.app.stopping = True
-            if self.cluster is not None:
-                self.cluster.set_ready(False)
-            server.close()
-            for conn in list(self.connections):
-                conn.shutdown()
-            deadline = time.monotonic() + self.config.graceful_timeout
-            while (self.connections or self.tasks) and time.monotonic() < deadline:
-                await asyncio.sleep(0.02)
-            for conn in list(self.connections):
-                conn.abort()
-            sweeper.cancel()
-            if self.router is not None:
-                self.router.stop()
-
-    def request_stop(self) -> None:
-        if self._loop is not None and self._stop is not None:
-            self._loop.call_soon_threadsafe(self._stop.set)
-
-    async def _sweep(self) -> None:
-        limits = self.limits
-        period = max(0.01, min(0.25, limits.read_timeout / 4, limits.keepalive_timeout / 4))
         last_store_sweep = 0.0
         while True:
-            self._now = now = time.monotonic()
-            for conn in list(self.connections) + list(self.refusing):
-                conn.tick(now)
+            now = time.monotonic()
+            if self.uvicorn.should_exit and not self.app.stopping:
+                self.request_stop()   # uvicorn's own signal handling asked to stop
             if now - last_store_sweep > min(self.store.ttl / 4.0, 30.0):
                 self.store.sweep()
                 last_store_sweep = now
             if self.cluster is not None:
                 self.cluster.publish(self)
-            await asyncio.sleep(period)
+            await asyncio.sleep(SWEEP_PERIOD)
 
 
 def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = True) -> tuple[Server, socket.socket]:

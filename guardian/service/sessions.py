@@ -61,17 +61,19 @@ class SessionIds:
     worker: int = 0
     boot: int = 0
     service_boot: int = 0
+    workers: int = 1      # the workers of this node (an id naming another index is unknown here)
 
     def __post_init__(self):
         if not NODE_NAME.match(self.node):
             raise ValueError(f"node name {self.node!r} must be 1-32 of a-z, 0-9 and '-', starting with a letter or digit")
-        if not 0 <= self.worker <= 999:
-            raise ValueError(f"worker index {self.worker} must be in 0..999")
+        if not 0 <= self.worker < self.workers <= 1000:
+            raise ValueError(f"worker index {self.worker} must be in 0..{self.workers - 1} (of at most 1000)")
 
     @classmethod
-    def starting_now(cls, node: str = "n0", worker: int = 0, service_boot: int | None = None) -> "SessionIds":
+    def starting_now(cls, node: str = "n0", worker: int = 0, service_boot: int | None = None,
+                     workers: int = 1) -> "SessionIds":
         now = time.time_ns() // 1_000_000
-        return cls(node, worker, now, now if service_boot is None else service_boot)
+        return cls(node, worker, now, now if service_boot is None else service_boot, workers)
 
     def new(self) -> str:
         return f"{self.node}.{self.worker}.{base36(self.boot)}.{secrets.token_hex(8)}"
@@ -96,6 +98,12 @@ class SessionIds:
         if boot < self.service_boot or (worker == self.worker and boot < self.boot):
             return ServiceError(410, f"server restarted: session {sid!r} was lost with the process that held it",
                                 restarted=True)
+        if worker >= self.workers:
+            return ServiceError(404, f"unknown session {sid!r}")
+        if worker != self.worker:  # only a request pipelined behind another on its connection lands here
+            return ServiceError(421, f"session {sid!r} lives on worker {worker}: send its requests on their own "
+                                     "turn (a request pipelined behind another worker's is not moved there)",
+                                node=node, worker=worker)
         return ServiceError(404, f"unknown session {sid!r}")
 
 
@@ -132,54 +140,73 @@ def _digest(secret: str) -> bytes:
 
 
 class Session:
-    """One guardian, its secret's digest, its last answer (for retries) and its stream, if any."""
+    """One guardian, its secret's digest, its last answer (for retries) and its stream, if any.
 
-    __slots__ = ("id", "guardian", "secret_digest", "created", "last_used", "last_key", "last_reply", "stream")
+    ``kind`` is ``two_car`` (Chapter 6's overtake pair: ``IntentionAwareGuardian``) or ``scene`` (an ego among
+    traffic: ``guardian.service.scene.SceneGuardian``)."""
 
-    def __init__(self, sid: str, library, use_intention: bool, horizon: int, priority: tuple, now: float):
+    __slots__ = ("id", "kind", "guardian", "t", "secret_digest", "created", "last_used", "last_request", "last_reply",
+                 "stream")
+
+    def __init__(self, sid: str, guardian, kind: str, now: float):
         self.id = sid
-        self.guardian = IntentionAwareGuardian(library, use_intention=use_intention, horizon=horizon,
-                                               priority=priority)
+        self.kind = kind
+        self.guardian = guardian
+        self.t = 0               # the next step's number
         self.secret_digest = b""
         self.created = now
         self.last_used = now
-        self.last_key = None     # (state, input) of the last step, as floats
+        self.last_request = None     # the last step's request (parsed), for retries
         self.last_reply = b""    # its JSON answer, sent again to a retry
         self.stream = None       # the attached stream, if any (one writer)
 
     @property
     def next_seq(self) -> int:
-        return self.guardian.t
+        return self.t
 
     def idle(self, now: float) -> float:
         return now - self.last_used
 
-    def step(self, seq: int, state, u) -> bytes:
+    def step(self, seq: int, request) -> bytes:
         """The JSON record of step ``seq`` (a retry of the last step gets the stored one)."""
-        expected = self.guardian.t
-        key = (tuple(state), tuple(u))
+        expected = self.t
         if seq != expected:
-            if seq == expected - 1 and key == self.last_key:
+            if seq == expected - 1 and self._same_as_last(request):
                 return self.last_reply
             if seq == expected - 1:
-                why = f"step {seq} was already applied with a different state or input"
+                why = (f"step {seq} was already applied with a different "
+                       + ("scene or input" if self.kind == "scene" else "state or input"))
             elif seq < expected:
                 why = f"step {seq} was already applied"
             else:
                 why = f"step {seq} would skip step {expected}"
             raise ServiceError(409, f"{why}; session {self.id!r} expects step {expected} next", expected_seq=expected)
-        _, record = self.guardian.step(np.array(state, dtype=float), np.array(u, dtype=float))
-        reply = json.dumps(record.as_dict()).encode()
-        self.last_key, self.last_reply = key, reply
+        if self.kind == "scene":
+            record = {"t": seq, **self.guardian.step(request)}
+        else:
+            _, rec = self.guardian.step(np.array(request.state, dtype=float), np.array(request.input, dtype=float))
+            record = rec.as_dict()
+        reply = json.dumps(record).encode()
+        self.t += 1
+        self.last_request, self.last_reply = request, reply
         return reply
 
+    def _same_as_last(self, request) -> bool:
+        """Is ``request`` the last step again (its state and input; the dump is made only for a retry)?"""
+        last = self.last_request
+        return (last is not None and type(last) is type(request)
+                and last.model_dump_json(exclude={"seq"}) == request.model_dump_json(exclude={"seq"}))
+
     def summary(self, now: float) -> dict:
-        g = self.guardian
         last = json.loads(self.last_reply) if self.last_reply else None
-        return {"session": self.id, "steps": g.t, "next_seq": g.t, "active_set": g.active_set,
-                "valid_intentions": list(g.estimator.valid), "use_intention": g.use_intention,
-                "horizon": g.estimator.horizon, "priority": [INPUT_NAMES[i] for i in g.priority],
-                "idle_s": round(self.idle(now), 3), "streaming": self.stream is not None, "last": last}
+        common = {"session": self.id, "kind": self.kind, "steps": self.t, "next_seq": self.t,
+                  "idle_s": round(self.idle(now), 3), "streaming": self.stream is not None, "last": last}
+        if self.kind == "scene":
+            return {**common, "model": self.guardian.model}
+        g = self.guardian
+        return {**common, "active_set": g.active_set, "valid_intentions": list(g.estimator.valid),
+                "use_intention": g.use_intention, "horizon": g.estimator.horizon,
+                "priority": [INPUT_NAMES[i] for i in g.priority]}
 
 
 class SessionStore:
@@ -221,15 +248,28 @@ class SessionStore:
         return len(stale)
 
     def create(self, use_intention: bool, horizon: int, priority: tuple[str, str]) -> dict:
-        """A new session; the answer holds its ``secret``, shown this once."""
+        """A new two-car session; the answer holds its ``secret``, shown this once."""
+        guardian = IntentionAwareGuardian(self.library, use_intention=use_intention, horizon=horizon,
+                                          priority=tuple(PRIORITY_NAMES[p] for p in priority))
+        return self._add(guardian, "two_car")
+
+    def create_scene(self, settings) -> dict:
+        """A new scene session (``guardian.service.scene.SceneSettings``); 422 for a model it cannot guarantee."""
+        from guardian.service.scene import SceneGuardian
+
+        return self._add(SceneGuardian(settings, self.library), "scene")
+
+    def _room(self) -> None:
         if len(self.live) >= self.max_sessions:
             self.sweep()
         if len(self.live) >= self.max_sessions:
             raise ServiceError(503, f"session limit {self.max_sessions} reached; idle sessions expire "
                                     f"after {self.ttl:g} s", retry_after_s=self.ttl)
+
+    def _add(self, guardian, kind: str) -> dict:
+        self._room()
         now = self.clock()
-        session = Session(self.ids.new(), self.library, use_intention, horizon,
-                          tuple(PRIORITY_NAMES[p] for p in priority), now)
+        session = Session(self.ids.new(), guardian, kind, now)
         secret = secrets.token_urlsafe(24)
         session.secret_digest = _digest(secret)
         self.live[session.id] = session
@@ -266,8 +306,16 @@ class SessionStore:
         if bad:
             raise ServiceError(422, "state outside the model domain: " + "; ".join(bad))
 
-    def step(self, sid: str, secret: str | None, seq: int, state, u, stream=None) -> bytes:
-        """Validate, then step the session's guardian; returns the record as JSON bytes.
+    def step_model(self, sid: str):
+        """The request body a step of session ``sid`` takes (404/410/421 for a session that is not here)."""
+        from guardian.service.api import StepRequest
+        from guardian.service.scene import SceneStep
+
+        return SceneStep if self.get(sid).kind == "scene" else StepRequest
+
+    def step(self, sid: str, secret: str | None, request, stream=None) -> bytes:
+        """Validate, then step the session's guardian with ``request`` (its ``step_model``); returns the record
+        as JSON bytes.
 
         ``stream`` is the caller's stream, if the step came on one: a session with a stream attached
         takes steps from that stream only.
@@ -275,10 +323,19 @@ class SessionStore:
         session = self.authorized(sid, secret)
         if session.stream is not stream:
             raise ServiceError(409, f"session {sid!r} is attached to a stream: steps go there (one writer per "
-                                    "session)", expected_seq=session.next_seq)
-        self.check_state(state)
+                                    "session)", expected_seq=session.next_seq, streaming=True)
+        if session.kind == "two_car":
+            self.check_state(request.state)
         session.last_used = self.clock()
-        return session.step(seq, state, u)
+        return session.step(request.seq, request)
+
+    def lane_change(self, sid: str, secret: str | None, query) -> dict:
+        """May a scene session's ego begin a lane change now (``guardian.service.scene.LaneChangeQuery``)?"""
+        session = self.authorized(sid, secret)
+        if session.kind != "scene":
+            raise ServiceError(409, f"session {sid!r} is a two-car session: lane changes are judged in its steps")
+        session.last_used = self.clock()
+        return session.guardian.lane_change(query)
 
     def summary(self, sid: str, secret: str | None, admin: bool = False) -> dict:
         session = self.authorized(sid, secret, admin)
@@ -296,9 +353,8 @@ class SessionStore:
     def listing(self) -> list[dict]:
         self.sweep()
         now = self.clock()
-        return [{"session": s.id, "steps": s.guardian.t, "idle_s": round(s.idle(now), 3),
-                 "active_set": s.guardian.active_set, "streaming": s.stream is not None}
-                for s in self.live.values()]
+        return [{"session": s.id, "kind": s.kind, "steps": s.t, "idle_s": round(s.idle(now), 3),
+                 "streaming": s.stream is not None} for s in self.live.values()]
 
     def counts(self) -> dict:
         self.sweep()

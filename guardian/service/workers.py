@@ -66,6 +66,13 @@ class Router:
         best = min(range(self.workers), key=lambda w: (load[w], w != self.worker))
         return best
 
+    def keep_placement(self) -> int:
+        """Count a new session kept on this worker as on its way here (until answered, like one sent to
+        another worker): its session is created only when the request's task runs, and many request lines
+        may arrive before that."""
+        self.cluster.placed[self.worker, self.worker] += 1
+        return self.worker
+
     def start(self, server) -> None:
         self.server = server
         self.rx.setblocking(False)
@@ -232,17 +239,10 @@ def _worker_main(library, config: ServiceConfig, sock, worker: int, boot: int, s
     cluster = Cluster(stats, placed, arrived, worker, router)
     router.cluster = cluster
     stats[worker, FIELDS.index("boot")] = boot
-    ids = SessionIds(config.node, worker, boot, service_boot)
+    ids = SessionIds(config.node, worker, boot, service_boot, config.workers)
     server = Server(library, config, ids=ids, router=router, cluster=cluster)
     server.store.on_change = lambda store: cluster.publish(server)
-
-    async def main():
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.add_signal_handler(sig, server.request_stop)
-        await server.serve(sock)
-
-    asyncio.run(main())
+    asyncio.run(server.serve(sock))  # SIGTERM and SIGINT stop it gracefully
     return 0
 
 

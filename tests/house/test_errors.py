@@ -19,7 +19,7 @@ def test_every_error_is_importable_from_guardian_errors():
 
     assert all(issubclass(c, BaseException) for c in (ConfigError, HighDFormatError, LPError, ServiceError,
                                                        StaleCacheError))
-    assert set(guardian.errors.__all__) == {"ConfigClash", "ConfigError", "FramingError", "HighDFormatError", "LPError",
+    assert set(guardian.errors.__all__) == {"ConfigClash", "ConfigError", "HighDFormatError", "LPError",
                                             "SchedulerError", "ServiceError", "StaleCacheError", "Terminated"}
     for name in rcis.errors.__all__:
         assert getattr(guardian.errors, name) is getattr(rcis.errors, name)

@@ -10,6 +10,7 @@ import random
 import socket
 import threading
 import time
+from collections import Counter, defaultdict
 
 import numpy as np
 import pytest
@@ -28,6 +29,21 @@ def service(library):
     limits = Limits(read_timeout=0.3, keepalive_timeout=2.0)
     with ServiceThread(library, ServiceConfig(port=0, limits=limits, max_sessions=5000)) as svc:
         yield svc
+
+
+FIGURES = defaultdict(Counter)  # test -> answers by status ("closed": none), printed at the end (-s)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def hostile_figures():
+    yield
+    print("\nhostile clients, answers by status:")
+    for test, counts in FIGURES.items():
+        print(f"  {test}: {sum(counts.values())} cases: " + ", ".join(f"{k}: {n}" for k, n in sorted(counts.items(), key=str)))
+
+
+def tally(test: str, answer) -> None:
+    FIGURES[test][answer[0] if answer is not None else "closed"] += 1
 
 
 def step_inputs(seed: int, n: int, first: int = 0) -> list:
@@ -71,6 +87,7 @@ FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=list(Heal
 def test_fuzzed_step_bodies_get_a_json_answer_never_a_5xx(service, body):
     sid, secret = fuzz_session(service)
     answer = fuzz_request(service, "POST", f"/sessions/{sid}/step", body, secret_header(secret))
+    tally("fuzzed step bodies", answer)
     assert answer is not None
     assert_answer_is_clean(answer)
     assert answer[0] in (200, 400, 409, 413, 422), answer  # 409: a valid body whose seq is not the next
@@ -80,6 +97,7 @@ def test_fuzzed_step_bodies_get_a_json_answer_never_a_5xx(service, body):
 @given(body=bodies)
 def test_fuzzed_session_bodies_get_a_json_answer_never_a_5xx(service, body):
     answer = fuzz_request(service, "POST", "/sessions", body)
+    tally("fuzzed session bodies", answer)
     assert_answer_is_clean(answer)
     assert answer[0] in (201, 400, 413, 422), answer
     if answer[0] == 201:
@@ -137,15 +155,20 @@ framings = st.builds(
 
 
 @settings(max_examples=120, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
-@given(request=framings, cut=st.integers(0, 200))
-def test_fuzzed_framing_is_answered_or_closed_cleanly_and_partial_requests_never_run(service, request, cut):
+@given(request=framings, cut=st.integers(0, 200), half_close=st.booleans())
+def test_fuzzed_framing_is_answered_or_closed_cleanly_and_partial_requests_never_run(service, request, cut, half_close):
+    """With a half-close after the bytes (``nc -N``) a whole request is answered and a partial one closed at once;
+    without, a partial one gets a 408 after the read timeout."""
     before = live_sessions(service)
     request = request[:len(request) - cut] if cut < len(request) else request
     raw = Raw(service.address, timeout=5.0).send(request)
+    if half_close:
+        raw.half_close()
     try:
         answer = raw.response()
     except ConnectionResetError:
         pytest.fail("the connection was reset instead of answered or closed")
+    tally("fuzzed framing", answer)
     assert_answer_is_clean(answer)
     created = answer is not None and answer[0] == 201
     if created:
@@ -255,7 +278,7 @@ def test_soak_no_leaks_and_sessions_do_not_disturb_each_other(service):
         while service.server.connections and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not service.server.connections, "connections left open"
-        assert not service.server.tasks, "requests left running"
+        assert not service.server.uvicorn.server_state.tasks, "requests left running"
 
     base_live = len(service.store.live)
     settle()

@@ -76,10 +76,43 @@ def test_every_step_on_a_fresh_connection_reaches_its_session(two):
         assert call(address, "GET", f"/sessions/{sid}", None, secret_header(secret))[2]["steps"] == 10
 
 
+def test_new_sessions_whose_requests_arrive_together_are_spread_over_the_workers():
+    """Ten ``POST /sessions`` lines reach worker 0 before any of their sessions exists (a session is created
+    when its request's task runs): the ones kept on worker 0 count as on their way there, like the ones sent
+    to worker 1, so the two get five each (not counting them kept all ten on worker 0)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from guardian.service.protocol import GuardianHttpProtocol
+    from guardian.service.workers import FIELDS, Cluster, Router
+
+    stats, placed, arrived = np.zeros((2, len(FIELDS)), np.int64), np.zeros((2, 2), np.int64), np.zeros((2, 2), np.int64)
+    stats[:, 0] = 1  # both workers alive, no session yet
+    router = Router.__new__(Router)
+    router.node, router.worker, router.workers = "n0", 0, 2
+    router.cluster = Cluster(stats, placed, arrived, 0, router)
+    router.send_connection = lambda worker, fd, data, placement=False: placed.__setitem__((0, worker),
+                                                                                          placed[0, worker] + 1) or True
+    class Connection(SimpleNamespace):
+        __hash__ = object.__hash__
+
+    kept = 0
+    for _ in range(10):
+        connection = Connection(
+            pending=bytearray(b"POST /sessions HTTP/1.1\r\n"), placed_by=None, limits=None, handoff_tries=0,
+            service=SimpleNamespace(router=router, handed_off=0), connections=set(), refused=False,
+            transport=SimpleNamespace(get_write_buffer_size=lambda: 0, abort=lambda: None,
+                                      get_extra_info=lambda name: SimpleNamespace(fileno=lambda: -1)),
+            _stop_read_timer=lambda: None)
+        kept += not GuardianHttpProtocol._handed_off(connection)
+    assert kept == 5 and list(placed.sum(axis=0)) == [5, 5], placed
+
+
 def test_one_connection_may_visit_sessions_of_every_worker(two):
     _, address, _ = two
     sessions = [create(address) for _ in range(8)]
-    raw = Raw(address)  # keep-alive: the connection moves to each session's worker in turn
+    raw = Raw(address)  # keep-alive: the connection moves to each session's worker in turn, between requests
     for k in range(3):
         for sid, secret in sessions:
             status, _, rec = raw.request("POST", f"/sessions/{sid}/step", step(k, GOOD_STATE, GOOD_INPUT),
@@ -87,8 +120,14 @@ def test_one_connection_may_visit_sessions_of_every_worker(two):
             assert status == 200 and rec["t"] == k
     pipelined = b"".join((f"GET /sessions/{sid} HTTP/1.1\r\nHost: localhost\r\nSession-Secret: {secret}\r\n\r\n")
                          .encode() for sid, secret in sessions)
-    raw.send(pipelined)  # pipelined across workers: answered in order
-    assert [raw.response()[2]["session"] for _ in sessions] == [sid for sid, _ in sessions]
+    raw.send(pipelined)  # pipelined across workers: answered in order, another worker's session with 421
+    answers = [raw.response() for _ in sessions]
+    first = sessions[0][0].split(".")[1]
+    for (sid, _), (status, _, body) in zip(sessions, answers):
+        if sid.split(".")[1] == first:
+            assert status == 200 and body["session"] == sid
+        else:
+            assert status == 421 and body["worker"] == int(sid.split(".")[1])
     raw.close()
 
 
@@ -259,6 +298,9 @@ def test_a_worker_that_takes_no_connections_gets_503_not_a_wrong_404(library):
 
         def place(self):
             return 0
+
+        def keep_placement(self):
+            return None
 
         def send_connection(self, worker, fd, data, placement=False):
             FullInbox.tries += 1
