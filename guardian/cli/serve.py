@@ -5,7 +5,7 @@ import argparse
 import asyncio
 import sys
 
-from guardian.cli.common import add_library_options, emit, load_library
+from guardian.cli.common import add_library_options, count, emit, load_library, positive_number
 
 
 def cmd_serve(args) -> int:
@@ -84,16 +84,16 @@ def add_commands(sub) -> None:
                         "header get 403)")
     p.add_argument("--node", default="n0",
                    help="this host's name in session ids, for several hosts behind a load balancer (default n0)")
-    p.add_argument("--session-ttl", type=float, default=300.0, help="seconds an idle session lives (300)")
-    p.add_argument("--max-sessions", type=int, default=1000, help="live sessions per worker at most (1000)")
-    p.add_argument("--max-connections", type=int, default=None,
+    p.add_argument("--session-ttl", type=positive_number, default=300.0, help="seconds an idle session lives (300)")
+    p.add_argument("--max-sessions", type=count(1), default=1000, help="live sessions per worker at most (1000)")
+    p.add_argument("--max-connections", type=count(1), default=None,
                    help="open connections per worker at most (default: the file-descriptor limit less 64, "
                         "at most 10000); beyond it a connection gets 503 and is closed")
-    p.add_argument("--max-body", type=int, default=64 * 1024, help="bytes of a body or stream message (65536)")
-    p.add_argument("--read-timeout", type=float, default=10.0,
+    p.add_argument("--max-body", type=count(1), default=64 * 1024, help="bytes of a body or stream message (65536)")
+    p.add_argument("--read-timeout", type=positive_number, default=10.0,
                    help="seconds to receive a whole request once it began (10)")
-    p.add_argument("--keepalive-timeout", type=float, default=5.0, help="seconds an idle connection stays open (5)")
-    p.add_argument("--stream-idle-timeout", type=float, default=60.0,
+    p.add_argument("--keepalive-timeout", type=positive_number, default=5.0, help="seconds an idle connection stays open (5)")
+    p.add_argument("--stream-idle-timeout", type=positive_number, default=60.0,
                    help="seconds a stream may go without a message before it is closed (60)")
     add_library_options(p)
     for action in p._actions:  # serve's --workers: the processes that serve sessions
