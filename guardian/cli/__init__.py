@@ -1,7 +1,7 @@
 """The ``guardian`` command line: one entry point, one module per command group.
 
 ``sets`` (rcis build|certify|export|plot), ``rollout``, ``falsify``, ``itha`` (highway|processors), ``data``
-(highd generate, data convert ngsim, replay), ``serve``; ``common`` holds what they share.
+(highd generate, data convert ngsim, replay), ``serve``, ``sumo``; ``common`` holds what they share.
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import signal
 import sys
 import threading
 
-from guardian.cli import data, falsify, itha, rollout, serve, sets
+from guardian.cli import data, falsify, itha, rollout, serve, sets, sumo
 from guardian.cli.common import Parser
 from guardian.errors import Terminated
 
@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"guardian {version()}",
                         help="print guardian's version and exit")
     sub = parser.add_commands("command")
-    for group in (sets, rollout, falsify, itha, data, serve):
+    for group in (sets, rollout, falsify, itha, data, serve, sumo):
         group.add_commands(sub)
     return parser
 

@@ -5,19 +5,21 @@ module missing from ``dependencies`` passed the suite and crashed ``guardian ser
 This test reads the imports themselves: every ``import x`` / ``from x import ...`` of every ``.py`` file
 of the packages the wheel ships (at any depth, inside functions too; docstrings and comments do not
 count), less the standard library and the project's own packages, mapped to the distribution that
-provides it, must be in ``[project] dependencies``. The ``rl`` extra's modules (stable-baselines3, torch)
-may be imported only inside a ``try`` whose ``except ImportError`` raises an error naming
-``pip install 'guardian[rl]'``.
+provides it, must be in ``[project] dependencies``. An extra's modules (``rl``: stable-baselines3, torch;
+``sumo``: eclipse-sumo, libsumo) may be imported only inside a ``try`` whose ``except ImportError`` raises an
+error naming ``pip install 'guardian[EXTRA]'``.
 """
 import ast
 import importlib.metadata
 import re
 import sys
 import tomllib
+
+import pytest
 from project import ROOT
 
 PACKAGES = ("guardian", "envs", "rcis", "intention", "itha")  # setup.py's find_packages(include=...)
-RL_HINT = "guardian[rl]"
+EXTRAS = {"rl": {"stable-baselines3", "torch"}, "sumo": {"eclipse-sumo", "libsumo"}}  # extra -> its distributions
 
 
 def _dist_name(requirement: str) -> str:
@@ -85,13 +87,13 @@ def _distributions(module: str) -> set:
 def test_every_imported_distribution_is_declared():
     project = _pyproject()
     declared = _declared(project["dependencies"])
-    rl = _declared(project["optional-dependencies"]["rl"])
+    extras = set().union(*(_declared(project["optional-dependencies"][e]) for e in EXTRAS))
     missing = {}
     for module, places in sorted(_third_party_imports().items()):
         dists = _distributions(module)
         if dists & declared:
             continue
-        if dists & rl:
+        if dists & extras:
             continue  # checked by the test below: imported only behind a clear error
         missing[module] = (sorted(dists), sorted({str(p) for p, _, _ in places}))
     assert missing == {}, f"imported but not in pyproject's dependencies: {missing}"
@@ -117,40 +119,41 @@ def _module_strings(tree: ast.Module) -> dict:
     return out
 
 
-def _raises_the_hint(handler: ast.ExceptHandler, constants: dict) -> bool:
+def _raises_the_hint(handler: ast.ExceptHandler, constants: dict, hint: str) -> bool:
     raises = [n for n in ast.walk(handler) if isinstance(n, ast.Raise) and n.exc is not None]
     texts = [n.value for r in raises for n in ast.walk(r) if isinstance(n, ast.Constant) and isinstance(n.value, str)]
     texts += [constants.get(n.id, "") for r in raises for n in ast.walk(r) if isinstance(n, ast.Name)]
-    return any(RL_HINT in t for t in texts)
+    return any(hint in t for t in texts)
 
 
-def _guarded(node: ast.AST, tree: ast.Module) -> bool:
-    """Whether ``node`` sits in the body of a ``try`` whose ImportError handler raises the rl hint."""
+def _guarded(node: ast.AST, tree: ast.Module, hint: str) -> bool:
+    """Whether ``node`` sits in the body of a ``try`` whose ImportError handler raises ``hint``."""
     parents, constants = _parents(tree), _module_strings(tree)
     child, parent = node, parents.get(node)
     while parent is not None:
         if isinstance(parent, ast.Try) and child in parent.body:
-            if any(_catches_import_error(h) and _raises_the_hint(h, constants) for h in parent.handlers):
+            if any(_catches_import_error(h) and _raises_the_hint(h, constants, hint) for h in parent.handlers):
                 return True
         child, parent = parent, parents.get(parent)
     return False
 
 
-def test_the_rl_extra_is_imported_only_behind_a_clear_error():
+@pytest.mark.parametrize("extra", sorted(EXTRAS))
+def test_an_extra_is_imported_only_behind_a_clear_error(extra):
     project = _pyproject()
     declared = _declared(project["dependencies"])
-    rl_only = {_dist_name(r) for r in project["optional-dependencies"]["rl"]} - declared
-    assert rl_only == {"stable-baselines3", "torch"}
-    seen, bare = [], []
+    only = {_dist_name(r) for r in project["optional-dependencies"][extra]} - declared
+    assert only == EXTRAS[extra]
+    hint, seen, bare = f"guardian[{extra}]", [], []
     for module, places in sorted(_third_party_imports().items()):
-        if not _distributions(module) & rl_only:
+        if not _distributions(module) & only:
             continue
         for path, node, tree in places:
             seen.append(f"{path}:{node.lineno}")
-            if not _guarded(node, tree):
+            if not _guarded(node, tree, hint):
                 bare.append(f"{path}:{node.lineno} imports {module}")
-    assert seen, "no import of the rl extra found: the check above would pass vacuously"
-    assert bare == [], f"the rl extra imported without an ImportError naming {RL_HINT!r}: {bare}"
+    assert seen, f"no import of the {extra} extra found: the check above would pass vacuously"
+    assert bare == [], f"the {extra} extra imported without an ImportError naming {hint!r}: {bare}"
 
 
 def test_an_extra_of_a_dependency_declares_what_it_brings():

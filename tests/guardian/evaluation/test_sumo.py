@@ -1,0 +1,143 @@
+"""Guarded episodes in Eclipse SUMO: the counting rules on hand-built cases, the frame, and real SUMO runs."""
+import math
+
+import pytest
+
+from guardian.adapters.sumo.scene import BicycleModel, Frame, overlap
+from guardian.evaluation.sumo import ENTRY_WINDOW, SumoSetting, Tracks, at_fault, run_episode, summary
+from guardian.model.roads import road_from_dict
+from guardian.model.sensing import Sensed
+
+
+def body(name, x, y, heading=0.0, speed=20.0, length=5.0, width=2.0):
+    return Sensed(name, x, y, heading, speed, length, width, x + length / 2, 0)
+
+
+# ---- the judge's rules, hand-built -------------------------------------------------------------------------
+def tracks_with(entries: dict, lanes: dict) -> Tracks:
+    t = Tracks()
+    t.lanes = {k: frozenset(v) for k, v in lanes.items()}
+    t.entered = entries
+    return t
+
+
+def test_the_body_that_entered_the_others_lane_is_at_fault():
+    ego, car = body("guarded", 0, 0), body("car", 4, 0)
+    assert at_fault(ego, car, tracks_with({"guarded": {1: 9.0}}, {"guarded": {0, 1}, "car": {1}}), 10.0) == (True, "entry")
+    assert at_fault(ego, car, tracks_with({"car": {0: 9.0}}, {"guarded": {0}, "car": {0, 1}}), 10.0) == (False, "entry")
+
+
+def test_both_entering_counts_against_the_guarded_vehicle():
+    ego, car = body("guarded", 0, 0), body("car", 4, 0)
+    tracks = tracks_with({"guarded": {1: 9.0}, "car": {0: 9.5}}, {"guarded": {0, 1}, "car": {0, 1}})
+    assert at_fault(ego, car, tracks, 10.0) == (True, "entry")
+
+
+def test_an_entry_older_than_the_window_is_not_an_entry():
+    ego, car = body("guarded", 10, 0), body("car", 4, 0)  # the car behind runs into the ego
+    tracks = tracks_with({"guarded": {1: 10.0 - ENTRY_WINDOW - 0.5}}, {"guarded": {1}, "car": {1}})
+    assert at_fault(ego, car, tracks, 10.0) == (False, "rear-end")
+
+
+def test_rear_end_the_body_behind_unless_the_one_ahead_reverses():
+    behind, ahead = body("guarded", 0, 0), body("car", 4.5, 0)
+    assert at_fault(behind, ahead, Tracks(), 1.0) == (True, "rear-end")
+    assert at_fault(behind, body("car", 4.5, 0, speed=-1.0), Tracks(), 1.0) == (False, "rear-end")
+    assert at_fault(body("guarded", 4.5, 0), body("car", 0, 0), Tracks(), 1.0) == (False, "rear-end")
+    assert at_fault(body("guarded", 4.5, 0, speed=-2.0), body("car", 0, 0), Tracks(), 1.0) == (True, "rear-end")
+
+
+def test_tracks_record_an_entry_when_a_body_begins_to_overlap_a_lane():
+    t = Tracks()
+    t.see("car", frozenset({0}), 0.0)
+    t.see("car", frozenset({0, 1}), 0.5)
+    t.see("guarded", frozenset({1}), 0.5)
+    assert t.entered == {"car": {1: 0.5}} and t.entered_lane_of("car", "guarded", 1.0)
+    assert not t.entered_lane_of("guarded", "car", 1.0)
+
+
+def test_overlap_of_rotated_bodies():
+    a = body("a", 0, 0)
+    assert overlap(a, body("b", 4.9, 0)) and not overlap(a, body("b", 5.1, 0))
+    assert not overlap(a, body("b", 0, 2.1)) and overlap(a, body("b", 0, 1.9))
+    # rotated by 90 degrees: its half length now lies across the road
+    assert overlap(a, body("b", 3.4, 0, heading=math.pi / 2)) and not overlap(a, body("b", 3.6, 0, heading=math.pi / 2))
+    # corner against corner at 45 degrees: the separating axis is one of the rotated body's
+    assert not overlap(a, body("b", 2.5 + 2.5 * math.cos(math.pi / 4) + 1.8, 1.0, heading=math.pi / 4))
+
+
+def test_the_frame_maps_sumo_to_the_road_model_and_back():
+    frame = Frame.__new__(Frame)
+    frame.n_lanes, frame.lane_width, frame.x0, frame.y_left, frame.edge = 3, 3.5, 0.0, -1.75, "highway"
+    frame.road = road_from_dict({"lanes": 3, "lane_width": 3.5})
+    xs, ys, angle = frame.to_sumo(100.0, 3.5, 0.1, 5.0)   # slot 1's centre, turning right by 0.1 rad
+    assert angle == pytest.approx(90 + math.degrees(0.1))
+    assert ys == pytest.approx(-1.75 - 3.5 - 2.5 * math.sin(0.1)) and xs == pytest.approx(100 + 2.5 * math.cos(0.1))
+    assert [frame.slot(k) for k in range(3)] == [2, 1, 0] and frame.sumo_lane(0) == 2
+
+
+def test_the_ego_model_is_highway_envs_bicycle():
+    m = BicycleModel(5.0, 0.1)
+    x, y, h, v = m.step(0.0, 0.0, 0.0, 20.0, 2.0, 0.0)
+    assert (x, y, h, v) == pytest.approx((2.0, 0.0, 0.0, 20.2))
+    x, y, h, v = m.step(0.0, 0.0, 0.0, 20.0, 0.0, 0.1)
+    beta = math.atan(0.5 * math.tan(0.1))
+    assert y == pytest.approx(2.0 * math.sin(beta)) and h == pytest.approx(2.0 * math.sin(beta) / 2.5)
+
+
+# ---- real SUMO ---------------------------------------------------------------------------------------------
+libsumo = pytest.importorskip("libsumo")
+SHORT = SumoSetting(seconds=25.0, warmup=30.0)
+
+
+def test_the_traffic_model_is_read_from_sumos_vehicle_types():
+    r = run_episode(SHORT, "random", seed=3)
+    assert r["inserted"] and r["traffic_accel"] == SHORT.traffic.emergency_decel
+    assert r["steps"] > 0 and r["ego_uncovered"] == 0, r  # SUMO puts the guarded car where the model says
+
+
+def test_reckless_drivers_crash_unguarded_and_cause_none_guarded():
+    unguarded = summary([run_episode(SHORT, "reckless", seed, guarded=False) for seed in range(4)])
+    guarded = summary([run_episode(SHORT, "reckless", seed) for seed in range(4)])
+    assert unguarded["collisions"] >= 2 and unguarded["at_fault"] >= 2, unguarded
+    assert guarded["at_fault_after_inside"] == 0 and guarded["safety_overrides"] > 0, guarded
+
+
+def test_through_the_service_every_decision_is_the_in_process_one_to_the_bit(library):
+    from guardian.client import GuardianClient
+    from guardian.client.bodies import guardian_body, vehicle_body
+    from guardian.client.shadow import Shadow
+    from guardian.service import ServiceConfig, ServiceThread
+
+    with ServiceThread(library, ServiceConfig(port=0)) as service, GuardianClient(service.url) as client:
+        def ask(guard, road):
+            session = client.create_scene_session(road, vehicle_body(guard.kin, guard.meta), guardian_body(guard.config))
+            return Shadow(guard, session, road)
+
+        r = run_episode(SumoSetting(seconds=15.0, warmup=30.0), "seek", seed=1, ask=ask)
+    assert r["service_steps"] == r["steps"] > 0 and r["service_disagreements"] == 0, r
+    assert r["safety_overrides"] > 0
+
+
+def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
+    import json
+    import subprocess
+    import sys
+
+    run = [sys.executable, "-m", "guardian.cli", "sumo", "--episodes", "1", "--seconds", "5", "--warmup", "20"]
+    done = subprocess.run(run + ["--json"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    (row,) = json.loads(done.stdout)["rows"]
+    assert row["guardian"] and row["episodes"] == 1 and row["steps"] == 50
+    for extra, why in ((["--no-guardian", "--through-service"], "does not apply"),
+                       (["--campaign", "--no-guardian"], "do(es) not apply with --campaign"),
+                       (["--campaign", "--agent", "seek"], "--agent do(es) not apply with --campaign"),
+                       (["--through-service", "--workers", "2"], "--workers 1"),
+                       (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers does not apply"),
+                       (["--scheduler", "notanaddress"], "--scheduler:"),
+                       (["--flow", "1e7"], "--flow must be at most"),
+                       (["--sigma", "5"], "--sigma must be in [0, 1]"),
+                       (["--emergency-decel", "1"], "--emergency-decel must be at least")):
+        done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
+        lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
+        assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
