@@ -128,6 +128,13 @@ def test_the_readme_is_a_front_door():
 
 
 @pytest.mark.parametrize("page", PAGES, ids=[p.name if p.parent == ROOT else f"docs/{p.name}" for p in PAGES])
+def test_no_placeholder_is_left_in_a_page(page):
+    """A figure to fill in later (``FIGURES_...``, ``TODO``, ``TBD``, ``XXX``) is not a figure."""
+    found = re.findall(r"\b(?:[A-Z]+_FIGURES?\b|FIGURES?_[A-Z_]+|TODO|TBD|XXX)\b", page.read_text())
+    assert not found, f"{page.name}: placeholders {found}"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.name if p.parent == ROOT else f"docs/{p.name}" for p in PAGES])
 def test_no_issue_numbers_session_words_or_links_outside_the_repo(page):
     text = page.read_text()
     assert not re.search(r"\b[Ii]ssues? \d", text)
@@ -141,9 +148,11 @@ def test_no_issue_numbers_session_words_or_links_outside_the_repo(page):
         assert resolved.exists() or rel in PENDING, f"{page.name}: broken link {target}"
 
 
-def _python_example():
-    """The README's Python block: its code, and the output its trailing comment lines say it prints."""
-    (block,) = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+def _python_example(k: int = 0):
+    """The README's ``k``-th Python block: its code, and the output its trailing comment lines say it prints."""
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+    assert len(blocks) == 2, "the README shows two Python examples: the wrapper and the service's client"
+    block = blocks[k]
     lines = block.rstrip("\n").splitlines()
     k = len(lines)
     while k and lines[k - 1].startswith("# "):
@@ -184,6 +193,17 @@ def test_the_readme_python_example_runs_and_prints_what_it_says(overtake_sets, c
     code, expected = _python_example()
     assert len(expected) == 2 and len(code.splitlines()) <= 20
     exec(compile(code, "README.md", "exec"), {})
+    _same_output(capsys.readouterr().out, expected)
+
+
+def test_the_readmes_service_example_runs_and_prints_what_it_says(library, capsys):
+    """The client example against a service on a free port (the README's says 8765)."""
+    from guardian.service import ServiceConfig, ServiceThread
+
+    code, expected = _python_example(1)
+    assert len(expected) == 1 and '"http://127.0.0.1:8765"' in code
+    with ServiceThread(library, ServiceConfig(port=0)) as service:
+        exec(compile(code.replace('"http://127.0.0.1:8765"', repr(service.url)), "README.md", "exec"), {})
     _same_output(capsys.readouterr().out, expected)
 
 
