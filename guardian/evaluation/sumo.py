@@ -13,8 +13,10 @@ car-following sets share). **Counted** (the rules, in docs/sumo.md, tested on ha
   involving it (``sumo_collisions``, its own detection, counted apart); the episode ends there.
 - fault (``at_fault``), on the bodies at contact, first rule that decides: (1) a body that began to overlap a lane
   the other's body was in within ``ENTRY_WINDOW`` s before contact entered: the entrant is at fault, both: the
-  guarded vehicle; (2) rear-end: the body behind, unless the one ahead drives backwards. Ties go against the
-  guarded vehicle.
+  guarded vehicle; (2) side contact: bodies alongside (overlapping along the road) at the observation before, the
+  one that moved sideways towards the other faster than ``SIDEWAYS`` is at fault, both: the guarded vehicle; (3)
+  rear-end: the body that was behind at the observation before the contact (a car passes 4 m in a step), unless
+  the one ahead drives backwards. Ties go against the guarded vehicle.
 - ``starts_outside``: the first decision found no self-safe acceleration (``in_invariant_set`` false): such
   episodes are counted apart (``at_fault_after_outside``), as on highway-env.
 - ``emergency_braking``, ``teleports``: SUMO's own counts of its traffic's emergency stops and teleports.
@@ -46,6 +48,7 @@ from guardian.decide.kinematics import BicycleEgo
 from guardian.errors import ConfigError
 
 ENTRY_WINDOW = 3.0   # [s]
+SIDEWAYS = 0.25      # [m/s] lateral speed below this is lane keeping (the same as highway-env's judge)
 EGO = "guarded"
 AGENTS = ("random", "reckless", "seek")
 PLACEMENT_TOL = 1e-3  # [m] SUMO's placement of the guarded vehicle against the model's state
@@ -75,33 +78,64 @@ class SumoSetting:
 
 @dataclass
 class Tracks:
-    """When each body began to overlap each lane (for the entry rule)."""
+    """When each body began to overlap each lane (the entry rule), and each body at the last two observations (the
+    side rule)."""
 
     lanes: dict = field(default_factory=dict)      # name -> slots now
     entered: dict = field(default_factory=dict)    # name -> {slot: time of the last entry}
+    seen: dict = field(default_factory=dict)       # name -> [(time, body) before, (time, body) now]
 
-    def see(self, name: str, slots: frozenset, t: float) -> None:
+    def see(self, name: str, slots: frozenset, t: float, body=None) -> None:
         before = self.lanes.get(name)
         if before is not None:
             for k in slots - before:
                 self.entered.setdefault(name, {})[k] = t
         self.lanes[name] = slots
+        self.seen[name] = [*self.seen.get(name, [])[-1:], (t, body)]
 
     def entered_lane_of(self, name: str, other: str, t: float) -> bool:
         """Did ``name``'s body begin to overlap a lane ``other``'s body is in within ``ENTRY_WINDOW`` s?"""
         theirs = self.lanes.get(other, frozenset())
         return any(k in theirs and t - when <= ENTRY_WINDOW + 1e-9 for k, when in self.entered.get(name, {}).items())
 
+    def before(self, name: str):
+        """``(time, body)`` at the observation before the last, or None."""
+        seen = self.seen.get(name, [])
+        return seen[0] if len(seen) == 2 and seen[0][1] is not None else None
+
+
+def _sideways(tracks: Tracks, me, other) -> bool | None:
+    """The side rule: were the bodies alongside at the observation before (overlapping along the road)? Then
+    True if ``me`` moved sideways towards ``other`` faster than ``SIDEWAYS`` (or both did), False if only ``other``
+    did; None when they were not alongside or neither moved sideways."""
+    a, b = tracks.before(me.name), tracks.before(other.name)
+    if a is None or b is None or a[0] != b[0]:
+        return None
+    (t0, m0), (_, o0) = a, b
+    dt = tracks.seen[me.name][-1][0] - t0
+    if dt <= 0 or abs(m0.x - o0.x) >= (m0.length + o0.length) / 2:
+        return None
+    towards = math.copysign(1.0, o0.y - m0.y)
+    mine, theirs = (me.y - m0.y) / dt * towards > SIDEWAYS, (other.y - o0.y) / dt * -towards > SIDEWAYS
+    return True if mine else (False if theirs else None)
+
 
 def at_fault(ego, partner, tracks: Tracks, t: float) -> tuple[bool, str]:
     """Is the guarded vehicle (``ego``, a ``Sensed`` body) at fault for touching ``partner``? With the rule that
-    decided."""
+    decided: entry, then side contact, then rear-end (highway-env's judge's order)."""
     ego_entered = tracks.entered_lane_of(ego.name, partner.name, t)
     partner_entered = tracks.entered_lane_of(partner.name, ego.name, t)
     if ego_entered or partner_entered:
         return ego_entered, "entry"
-    behind = ego.x <= partner.x
-    if behind:
+    side = _sideways(tracks, ego, partner)
+    if side is not None:
+        return side, "side"
+    e0, p0 = tracks.before(ego.name), tracks.before(partner.name)
+    if e0 is not None and p0 is not None and e0[0] == p0[0]:
+        ego_x, partner_x = e0[1].x, p0[1].x   # who was behind before they touched (a step is up to 4 m)
+    else:
+        ego_x, partner_x = ego.x, partner.x
+    if ego_x <= partner_x:
         return partner.speed >= 0, "rear-end"
     return ego.speed < 0, "rear-end"
 
@@ -228,7 +262,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
         _traffic_coverage(out, prev, others, accel, dt)
         prev = {b.name: b for b in others}
         for b in [ego, *others]:
-            tracks.see(b.name, frame.road.body_slots(b.x, b.y, b.heading, b.length, b.width), t)
+            tracks.see(b.name, frame.road.body_slots(b.x, b.y, b.heading, b.length, b.width), t, b)
         touching = [b for b in others if overlap(ego, b)]
         sumo_hit = [c for c in traci.simulation.getCollisions() if EGO in (c.collider, c.victim)]
         out["sumo_collisions"] += bool(sumo_hit)

@@ -47,6 +47,45 @@ def test_rear_end_the_body_behind_unless_the_one_ahead_reverses():
     assert at_fault(body("guarded", 4.5, 0, speed=-2.0), body("car", 0, 0), Tracks(), 1.0) == (True, "rear-end")
 
 
+def side_by_side(ego_dy: float, car_dy: float, ego_x: float = 0.0, car_x: float = 1.0):
+    """The guarded vehicle in lane 1 (y 3.5) and a car in lane 2 (y 7.0) alongside, each moving sideways by its dy
+    over 0.1 s; both already in these lanes long before (no entry in the window)."""
+    t = Tracks()
+    e0, c0 = body("guarded", ego_x, 3.5), body("car", car_x, 7.0)
+    e1, c1 = body("guarded", ego_x + 2, 3.5 + ego_dy), body("car", car_x + 2, 7.0 + car_dy)
+    for when, e, c in ((0.0, e0, c0), (0.0, e0, c0), (0.1, e1, c1)):
+        t.see("guarded", frozenset({1}), when, e)
+        t.see("car", frozenset({2}), when, c)
+    return e1, c1, t
+
+
+def test_rear_end_goes_by_who_was_behind_before_the_contact():
+    """A car passing the guarded vehicle at 16 m/s clips its body, which sticks 0.25 m into the car's lane: at the
+    contact the car's centre is already 0.55 m ahead, before it it was 1 m behind; the car ran into it."""
+    t = Tracks()
+    slow0, fast0 = body("guarded", 100.0, 4.5, speed=1.5), body("car", 99.0, 7.0, speed=16.5)
+    slow1, fast1 = body("guarded", 100.15, 4.5, speed=1.5), body("car", 100.7, 7.0, speed=16.5)
+    for when, a, b in ((0.0, slow0, fast0), (0.0, slow0, fast0), (0.1, slow1, fast1)):
+        t.see("guarded", frozenset({1, 2}), when, a)
+        t.see("car", frozenset({2}), when, b)
+    t.entered = {}  # both in their lanes for long
+    assert at_fault(slow1, fast1, t, 0.1) == (False, "rear-end")
+    assert at_fault(fast1, slow1, t, 0.1) == (True, "rear-end")  # the same crash, the car in the guarded seat
+
+
+def test_side_contact_the_body_that_moved_sideways_is_at_fault():
+    ego, car, t = side_by_side(ego_dy=0.1, car_dy=0.0)          # the guarded vehicle drifts towards the car, 1 m/s
+    assert at_fault(ego, car, t, 0.1) == (True, "side")
+    ego, car, t = side_by_side(ego_dy=0.0, car_dy=-0.1)         # the car drifts towards the guarded vehicle
+    assert at_fault(ego, car, t, 0.1) == (False, "side")
+    ego, car, t = side_by_side(ego_dy=0.1, car_dy=-0.1)         # both: against the guarded vehicle
+    assert at_fault(ego, car, t, 0.1) == (True, "side")
+    ego, car, t = side_by_side(ego_dy=0.01, car_dy=0.0, ego_x=2.0, car_x=0.0)  # neither: the rear-end rule (car behind)
+    assert at_fault(ego, car, t, 0.1) == (False, "rear-end")
+    ego, car, t = side_by_side(ego_dy=0.1, car_dy=0.0, ego_x=6.0, car_x=0.0)   # not alongside before: rear-end
+    assert at_fault(ego, car, t, 0.1) == (False, "rear-end")
+
+
 def test_tracks_record_an_entry_when_a_body_begins_to_overlap_a_lane():
     t = Tracks()
     t.see("car", frozenset({0}), 0.0)
@@ -141,3 +180,15 @@ def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
         done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
         lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
         assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
+
+
+def test_sumo_is_told_the_lane_the_body_has_just_entered():
+    from guardian.adapters.sumo.scene import sumo_slot
+
+    f = frozenset
+    assert sumo_slot(None, f({1}), 1, f({1})) == 1               # inside its lane
+    assert sumo_slot(None, f({1, 2}), 1, f({1})) == 2            # its body begins to overlap slot 2: slot 2
+    assert sumo_slot(None, f({1, 2}), 2, f({1, 2})) == 2         # still over the line: stays on slot 2
+    assert sumo_slot(None, f({2}), 2, f({1, 2})) == 2            # wholly in slot 2
+    assert sumo_slot(None, f({1, 2}), 2, f({2})) == 1            # back towards slot 1: slot 1 at once
+    assert sumo_slot(None, f({0, 1}), 1, f({1})) == 0
