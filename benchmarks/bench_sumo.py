@@ -1,0 +1,81 @@
+"""The guardian's cost per SUMO step beside SUMO's own: reading the scene, deciding, and SUMO's step.
+
+Run: python benchmarks/bench_sumo.py [--episodes 4] [--seconds 60] [--agent reckless] [--traffic Krauss] [--json]
+
+Runs guarded episodes of ``guardian.evaluation.sumo`` (libsumo in process, one guarded vehicle) with timers around
+SUMO's ``simulationStep``, the scene read (every vehicle's body from SUMO and the scene built), and the decision
+(``BicycleGuardian.step``); prints each one's median and p99 per step in milliseconds, the traffic's size, and the
+wall time one simulated hour would take at that rate. Run it on a quiet machine.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+import guardian.evaluation.sumo as sumo_run
+from guardian.adapters.sumo.network import Traffic
+
+
+def timed(store: list, fn):
+    def wrapper(*args, **kwargs):
+        t0 = time.perf_counter()
+        out = fn(*args, **kwargs)
+        store.append(time.perf_counter() - t0)
+        return out
+    return wrapper
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--episodes", type=int, default=4)
+    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--agent", default="reckless", choices=sumo_run.AGENTS)
+    p.add_argument("--traffic", default="Krauss", choices=("Krauss", "IDM", "EIDM"))
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args()
+    import libsumo
+
+    times = {"sumo_step": [], "scene": [], "decision": []}
+    vehicles = []
+    real_step, real_decide, real_scene = libsumo.simulationStep, sumo_run.BicycleGuardian.step, sumo_run.scene
+    libsumo.simulationStep = timed(times["sumo_step"], real_step)
+    sumo_run.BicycleGuardian.step = timed(times["decision"], real_decide)
+
+    def scene(frame, ego, others, *rest):
+        vehicles.append(len(others) + 1)
+        return real_scene(frame, ego, others, *rest)
+
+    sumo_run.scene = timed(times["scene"], scene)
+    real_body = sumo_run.Frame.body
+    sumo_run.Frame.body = timed(times.setdefault("body_reads", []), real_body)
+    setting = sumo_run.SumoSetting(seconds=args.seconds, traffic=Traffic(car_following=args.traffic))
+    try:
+        results = [sumo_run.run_episode(setting, args.agent, seed) for seed in range(args.episodes)]
+    finally:
+        libsumo.simulationStep, sumo_run.BicycleGuardian.step, sumo_run.scene = real_step, real_decide, real_scene
+        sumo_run.Frame.body = real_body
+    steps = sum(r["steps"] for r in results)
+    reads_per_step = len(times["body_reads"]) / max(steps, 1)
+    out = {"episodes": args.episodes, "guarded_steps": steps, "vehicles_mean": float(np.mean(vehicles)),
+           "reads_ms_per_step": 1e3 * sum(times["body_reads"]) / max(steps, 1), "reads_per_step": reads_per_step}
+    for name in ("sumo_step", "scene", "decision"):
+        ms = 1e3 * np.array(times[name])  # SUMO's steps: the warm-ups' too (the same traffic)
+        out[name] = {"median_ms": round(float(np.median(ms)), 4), "p99_ms": round(float(np.percentile(ms, 99)), 4)}
+    per_step = out["sumo_step"]["median_ms"] + out["reads_ms_per_step"] + out["scene"]["median_ms"] + \
+        out["decision"]["median_ms"]
+    out["wall_s_per_simulated_hour"] = round(per_step / 1e3 * 3600 / setting.step_length, 1)
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return
+    print(f"{steps} guarded steps, {out['vehicles_mean']:.1f} vehicles in the scene on average")
+    for name in ("sumo_step", "scene", "decision"):
+        print(f"  {name:10s} median {out[name]['median_ms']:.3f} ms  p99 {out[name]['p99_ms']:.3f} ms")
+    print(f"  reading every body from SUMO: {out['reads_ms_per_step']:.3f} ms per step ({reads_per_step:.0f} reads)")
+    print(f"  one simulated hour at these medians: {out['wall_s_per_simulated_hour']:g} s")
+
+
+if __name__ == "__main__":
+    main()
