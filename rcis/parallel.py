@@ -137,11 +137,16 @@ def _terminate(executor) -> None:
         terminate()
         return
     processes = list((getattr(executor, "_processes", None) or {}).values())  # no public way before 3.14
+    manager = getattr(executor, "_executor_manager_thread", None)
     executor.shutdown(wait=False, cancel_futures=True)
     for proc in processes:
         proc.terminate()
     for proc in processes:
         proc.join(timeout=2)
+    if manager is not None:
+        # The manager thread closes its wake-up pipe when it sees the workers gone; at exit the
+        # interpreter writes to that pipe, and a close racing that write raises EBADF (CPython < 3.14).
+        manager.join(timeout=2)
 
 
 def check_scheduler(address: str, timeout: float | str | None = None) -> None:

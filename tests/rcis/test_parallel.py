@@ -30,3 +30,35 @@ def test_an_unreachable_scheduler_is_refused_before_any_work():
         with pytest.raises(SchedulerError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9 "):
             with Jobs(scheduler="tcp://127.0.0.1:9"):
                 raise AssertionError("work started before the scheduler answered")
+
+
+_INTERRUPTED = """
+import time
+from rcis.parallel import Jobs
+
+try:
+    with Jobs(workers=2) as jobs:
+        running = [jobs.submit(time.sleep, 30) for _ in range(4)]
+        time.sleep(0.3)
+        raise KeyboardInterrupt
+except KeyboardInterrupt:
+    pass
+"""
+
+
+@pytest.mark.slow
+def test_leaving_jobs_by_an_interrupt_ends_quietly():
+    """Terminated workers must leave the interpreter's exit clean: before the manager thread was joined,
+    about 1 run in 20 printed an EBADF traceback from concurrent.futures' exit hook."""
+    import subprocess
+    import sys
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    def once(_):
+        run = subprocess.run([sys.executable, "-c", _INTERRUPTED], capture_output=True, text=True, timeout=60)
+        return run.returncode, run.stderr
+
+    with ThreadPoolExecutor(4) as pool:
+        runs = list(pool.map(once, range(60)))
+    assert [r for r in runs if r != (0, "")] == []
