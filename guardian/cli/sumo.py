@@ -10,6 +10,7 @@ from guardian.cli.progress import ProgressBar
 TRAFFIC = ("Krauss", "IDM", "EIDM")
 AGENTS = ("random", "reckless", "seek")
 DECEL = 4.5          # [m/s^2] the traffic's decel (guardian.adapters.sumo.network.Traffic)
+MIN_LENGTH = 500.0    # [m]
 MAX_FLOW = 36_000.0  # [vehicles per hour] one per SUMO step of 0.1 s: SUMO refuses a denser flow
 
 
@@ -56,6 +57,10 @@ def _refusal(args) -> str | None:
         if given:
             return (f"{', '.join(given)} do(es) not apply with --campaign (it runs every traffic model, lane-change "
                     "model and agent, guarded and unguarded)")
+    if args.overapprox == "ordered" and args.guarded == 1:
+        return "--overapprox ordered does not apply to one guarded vehicle (nothing to announce): use --guarded N"
+    if args.length < MIN_LENGTH:
+        return f"--length must be at least {MIN_LENGTH:g} m (the run needs room to insert and to drive), got {args.length:g}"
     if not 0 <= args.sigma <= 1:
         return f"--sigma must be in [0, 1], got {args.sigma:g}"
     if args.emergency_decel < DECEL:
@@ -77,7 +82,8 @@ def _cells(args) -> list:
     from guardian.evaluation.sumo import SumoSetting
 
     def setting(traffic: str, sublane: bool):
-        return SumoSetting(net=HighwayNet(lanes=args.lanes), seconds=args.seconds, warmup=args.warmup,
+        return SumoSetting(net=HighwayNet(lanes=args.lanes, length=args.length), seconds=args.seconds,
+                           warmup=args.warmup, guarded=args.guarded,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))
 
@@ -88,11 +94,13 @@ def _cells(args) -> list:
 
 def _run(work: list, args, ask, progress):
     """``(work item, its result)`` as each episode finishes."""
+    from guardian.config import GuardianConfig
     from guardian.evaluation.sumo import run_episode
     from rcis.parallel import Jobs
 
     with Jobs(workers=args.workers, scheduler=args.scheduler) as jobs:
-        running = {k: jobs.submit(run_episode, cell[0], cell[1], seed, cell[2], None, None, ask)
+        config = GuardianConfig(overapprox=args.overapprox)
+        running = {k: jobs.submit(run_episode, cell[0], cell[1], seed, cell[2], config, None, ask)
                    for k, (cell, seed) in enumerate(work)}
         for n, (k, value) in enumerate(jobs.as_completed(running), 1):
             progress(n, len(work))
@@ -105,8 +113,7 @@ def _row(cell, results: list) -> dict:
     setting, agent, guarded = cell
     total = summary([r for _, r in results])
     steps = total["traffic_car_steps"]
-    crashes = [{"seed": seed, "at_fault": bool(r["at_fault"]), "rule": r["fault_rule"], "partner": r["partner"],
-                "start_inside": r["start_inside"], "step": r["steps"]} for seed, r in results if r["collisions"]]
+    crashes = [{"seed": seed, **crash} for seed, r in results for crash in r["crashes"]]
     return {"traffic": setting.traffic.car_following, "lane_change": setting.traffic.lane_change, "agent": agent,
             "guardian": guarded, **total, "per_hour": total["collisions"] / total["hours"] if total["hours"] else 0.0,
             "traffic_uncovered_share": total["traffic_uncovered"] / steps if steps else 0.0, "crashes": crashes}
@@ -121,8 +128,8 @@ def _text(result: dict) -> str:
         lines.append(f"{r['traffic']} {r['lane_change']} {r['agent']} guardian={'on' if r['guardian'] else 'off'}")
         figures = [(k, v) for k, v in r.items() if k not in ("traffic", "lane_change", "agent", "guardian", "crashes")]
         lines.append("  " + " ".join(f"{k}={_number(v)}" for k, v in figures))
-        lines += [f"  crash: seed {c['seed']} step {c['step']} rule={c['rule']} at_fault={c['at_fault']} "
-                  f"partner={c['partner']} start_inside={c['start_inside']}" for c in r["crashes"]]
+        lines += [f"  crash: seed {c['seed']} step {c['step']} {c['vehicle']} and {c['partner']} rule={c['rule']} "
+                  f"at_fault={c['culprit'] or False} start_inside={c['start_inside']}" for c in r["crashes"]]
     return "\n".join(lines)
 
 
@@ -162,6 +169,12 @@ def add_commands(sub) -> None:
     p.add_argument("--campaign", action="store_true",
                    help="every traffic model x lane-change model x agent, guarded and unguarded, in one table")
     p.add_argument("--lanes", type=count(1), default=3, help="lanes of the straight highway (3)")
+    p.add_argument("--length", type=positive_number, default=3000.0, help="the highway's length [m] (3000)")
+    p.add_argument("--guarded", type=count(1), default=1,
+                   help="guarded vehicles, each with its own guardian and driver, all others traffic to it (1)")
+    p.add_argument("--overapprox", choices=("trivial", "ordered"), default="trivial",
+                   help="with several guarded vehicles: ordered, they decide in Example 8's order and announce "
+                        "their lanes to the ones after (trivial)")
     p.add_argument("--flow", type=positive_number, default=3000.0, help="traffic vehicles per hour (3000)")
     p.add_argument("--sigma", type=number, default=0.5, help="the traffic drivers' imperfection, 0..1 (0.5)")
     p.add_argument("--emergency-decel", type=positive_number, default=6.0,

@@ -1,32 +1,39 @@
-"""Guarded episodes in Eclipse SUMO: SUMO's own traffic, one guarded vehicle, counted by SUMO and by a judge.
+"""Guarded episodes in Eclipse SUMO: SUMO's own traffic, one or many guarded vehicles, counted by SUMO and a judge.
 
 An episode: SUMO (libsumo, in process) runs the network and traffic of a ``SumoSetting`` for ``warmup`` seconds,
-inserts the guarded vehicle, then every SUMO step reads the scene (``guardian.adapters.sumo.scene``), lets an
-agent propose ``[acceleration, steering]``, has ``BicycleGuardian`` decide (or not, unguarded), moves the vehicle
-by the model under the applied input and steps SUMO.
+inserts the guarded vehicles, then every SUMO step reads the scene (``guardian.adapters.sumo.scene``), lets each
+guarded vehicle's driver propose ``[acceleration, steering]``, has its own ``BicycleGuardian`` decide (or not,
+unguarded), moves it by the model under the applied input, gives its body's other lanes shadows
+(``guardian.adapters.sumo.shadows``: SUMO's drivers see a body over the line) and steps SUMO.
+
+With several guarded vehicles each has its own guardian and driver and sees every other vehicle as traffic;
+with ``GuardianConfig.overapprox = "ordered"`` they decide in Example 8's order (``itha.road.example8_order``:
+ahead first, on ties the slower lane first), each told the lanes the vehicles before it announced they may
+occupy during the step, as on highway-env.
 
 **The traffic model is read from SUMO**: the hardest braking of any traffic vehicle type (its
-``emergencyDecel``) becomes ``GuardianConfig.traffic_accel`` (and the ego's acceleration bound, which the
-car-following sets share). **Counted** (the rules, in docs/sumo.md, tested on hand-built cases):
+``emergencyDecel``) becomes ``GuardianConfig.traffic_accel`` (and the guarded vehicles' acceleration bound, which
+the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested on hand-built cases):
 
-- ``collisions``: the guarded vehicle's body overlaps another's (rotated rectangles), or SUMO reports a collision
-  involving it (``sumo_collisions``, its own detection, counted apart); the episode ends there.
-- fault (``at_fault``), on the bodies at contact, first rule that decides: (1) a body that began to overlap a lane
-  the other's body was in within ``ENTRY_WINDOW`` s before contact entered: the entrant is at fault, both: the
-  guarded vehicle; (2) side contact: bodies alongside (overlapping along the road) at the observation before, the
-  one that moved sideways towards the other faster than ``SIDEWAYS`` is at fault, both: the guarded vehicle; (3)
-  rear-end: the body that was behind at the observation before the contact (a car passes 4 m in a step), unless
-  the one ahead drives backwards. Ties go against the guarded vehicle.
-- ``starts_outside``: the first decision found no self-safe acceleration (``in_invariant_set`` false): such
-  episodes are counted apart (``at_fault_after_outside``), as on highway-env.
+- ``collisions``: a guarded vehicle's body overlaps another's (rotated rectangles), or SUMO reports a collision
+  involving it (``sumo_collisions``, its own detection, counted apart; a shadow's are ``shadow_collisions``).
+  Both vehicles leave the road there; with one guarded vehicle the episode ends. Each collision is one entry
+  of ``crashes``.
+- fault: ``guardian.evaluation.sumo_judge.at_fault`` on the bodies at contact, asked for the guarded vehicle
+  (between two guarded vehicles, for the one listed first; ties go against it). A collision at fault counts
+  after a start inside or outside by the start of the guarded vehicle at fault (``at_fault_after_inside``,
+  ``at_fault_after_outside``); ``between_guarded`` counts collisions of two guarded vehicles.
+- ``starts_outside``: guarded vehicles whose first decision found no self-safe acceleration
+  (``in_invariant_set`` false).
 - ``emergency_braking``, ``teleports``: SUMO's own counts of its traffic's emergency stops and teleports.
-- ``ego_lane_unseen``: steps SUMO kept the guarded vehicle on another lane than the one its body has just entered
-  (``guardian.adapters.sumo.scene.sumo_slot``): SUMO's cars react to a vehicle on their own lane only, so the cars
-  behind in the entered lane did not see it then (SUMO maps a moved vehicle to the lane of its centre).
-- model coverage: ``ego_uncovered`` (SUMO did not put the vehicle where the model said, more than 1 mm off) and
-  ``traffic_uncovered`` (a traffic car's step outside the traffic model: braking beyond ``traffic_accel``, or a
-  position update other than the Euler step ``x + v dt`` of (7.3); SUMO's default Euler update moves a car by its
-  *new* speed, so every step with a speed change counts), with the worst excess of each.
+- ``ego_lane_unseen``: vehicle-steps where a lane a guarded body overlaps held neither the vehicle nor one of
+  its shadows in SUMO after the step (the cars behind there did not see it).
+- model coverage: ``ego_uncovered`` (SUMO did not put a guarded vehicle where the model said, more than 1 mm
+  off) and ``traffic_uncovered`` (a traffic car's step outside the traffic model: braking beyond
+  ``traffic_accel``, or a position update other than the Euler step ``x + v dt`` of (7.3); SUMO's default
+  Euler update moves a car by its *new* speed, so every step with a speed change counts), with the worst
+  excess of each.
+- ``guarded_lost``: guarded vehicles SUMO removed before the road's end (never expected: counted against us).
 """
 from __future__ import annotations
 
@@ -41,16 +48,17 @@ import numpy as np
 
 from guardian.adapters.sumo import network
 from guardian.adapters.sumo.network import HighwayNet, Traffic
-from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap, place, scene, sumo_slot
+from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap, place, scene
+from guardian.adapters.sumo.shadows import SHADOW_TYPE, Shadows, is_shadow
 from guardian.config import GuardianConfig
 from guardian.decide.bicycle import BicycleGuardian
 from guardian.decide.kinematics import BicycleEgo
 from guardian.errors import ConfigError
+from guardian.evaluation.sumo_agents import agent_of
+from guardian.evaluation.sumo_judge import Tracks, at_fault
+from itha.road import example8_order
 
-ENTRY_WINDOW = 3.0   # [s]
-SIDEWAYS = 0.25      # [m/s] lateral speed below this is lane keeping (the same as highway-env's judge)
 EGO = "guarded"
-AGENTS = ("random", "reckless", "seek")
 PLACEMENT_TOL = 1e-3  # [m] SUMO's placement of the guarded vehicle against the model's state
 
 
@@ -67,8 +75,11 @@ class SumoSetting:
     ego_width: float = 2.0
     max_steering: float = math.pi / 4
     depart_speed: float = 25.0
+    guarded: int = 1            # guarded vehicles (each its own guardian and driver; every other vehicle is traffic)
 
     def __post_init__(self):
+        if self.guarded < 1:
+            raise ConfigError(f"guarded must be >= 1, got {self.guarded}")
         for name in ("step_length", "warmup", "seconds", "ego_length", "ego_width", "max_steering"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -76,102 +87,10 @@ class SumoSetting:
             raise ConfigError(f"max_steering must be below pi/2, got {self.max_steering}")
 
 
-@dataclass
-class Tracks:
-    """When each body began to overlap each lane (the entry rule), and each body at the last two observations (the
-    side rule)."""
-
-    lanes: dict = field(default_factory=dict)      # name -> slots now
-    entered: dict = field(default_factory=dict)    # name -> {slot: time of the last entry}
-    seen: dict = field(default_factory=dict)       # name -> [(time, body) before, (time, body) now]
-
-    def see(self, name: str, slots: frozenset, t: float, body=None) -> None:
-        before = self.lanes.get(name)
-        if before is not None:
-            for k in slots - before:
-                self.entered.setdefault(name, {})[k] = t
-        self.lanes[name] = slots
-        self.seen[name] = [*self.seen.get(name, [])[-1:], (t, body)]
-
-    def entered_lane_of(self, name: str, other: str, t: float) -> bool:
-        """Did ``name``'s body begin to overlap a lane ``other``'s body is in within ``ENTRY_WINDOW`` s?"""
-        theirs = self.lanes.get(other, frozenset())
-        return any(k in theirs and t - when <= ENTRY_WINDOW + 1e-9 for k, when in self.entered.get(name, {}).items())
-
-    def before(self, name: str):
-        """``(time, body)`` at the observation before the last, or None."""
-        seen = self.seen.get(name, [])
-        return seen[0] if len(seen) == 2 and seen[0][1] is not None else None
-
-
-def _sideways(tracks: Tracks, me, other) -> bool | None:
-    """The side rule: were the bodies alongside at the observation before (overlapping along the road)? Then
-    True if ``me`` moved sideways towards ``other`` faster than ``SIDEWAYS`` (or both did), False if only ``other``
-    did; None when they were not alongside or neither moved sideways."""
-    a, b = tracks.before(me.name), tracks.before(other.name)
-    if a is None or b is None or a[0] != b[0]:
-        return None
-    (t0, m0), (_, o0) = a, b
-    dt = tracks.seen[me.name][-1][0] - t0
-    if dt <= 0 or abs(m0.x - o0.x) >= (m0.length + o0.length) / 2:
-        return None
-    towards = math.copysign(1.0, o0.y - m0.y)
-    mine, theirs = (me.y - m0.y) / dt * towards > SIDEWAYS, (other.y - o0.y) / dt * -towards > SIDEWAYS
-    return True if mine else (False if theirs else None)
-
-
-def at_fault(ego, partner, tracks: Tracks, t: float) -> tuple[bool, str]:
-    """Is the guarded vehicle (``ego``, a ``Sensed`` body) at fault for touching ``partner``? With the rule that
-    decided: entry, then side contact, then rear-end (highway-env's judge's order)."""
-    ego_entered = tracks.entered_lane_of(ego.name, partner.name, t)
-    partner_entered = tracks.entered_lane_of(partner.name, ego.name, t)
-    if ego_entered or partner_entered:
-        return ego_entered, "entry"
-    side = _sideways(tracks, ego, partner)
-    if side is not None:
-        return side, "side"
-    e0, p0 = tracks.before(ego.name), tracks.before(partner.name)
-    if e0 is not None and p0 is not None and e0[0] == p0[0]:
-        ego_x, partner_x = e0[1].x, p0[1].x   # who was behind before they touched (a step is up to 4 m)
-    else:
-        ego_x, partner_x = ego.x, partner.x
-    if ego_x <= partner_x:
-        return partner.speed >= 0, "rear-end"
-    return ego.speed < 0, "rear-end"
-
-
-def agent_of(name: str, setting: SumoSetting, rng: np.random.Generator):
-    """A driver proposing ``[acceleration, steering]`` from the ego's body and the others' bodies."""
-    if name not in AGENTS:
-        raise ConfigError(f"agent must be one of {', '.join(AGENTS)}, got {name!r}")
-    amax, smax = setting.traffic.emergency_decel, setting.max_steering
-    held = {"u": (0.0, 0.0), "left": 0}
-
-    def random_agent(ego, others, t):
-        if held["left"] <= 0:
-            held["u"] = (float(rng.uniform(-amax, amax)), float(rng.uniform(-0.05, 0.05)))
-            held["left"] = int(rng.integers(5, 20))
-        held["left"] -= 1
-        return held["u"]
-
-    def reckless(ego, others, t):
-        return amax, float(np.clip(0.05 * math.sin(t / 1.5) - 0.5 * ego.heading, -smax, smax))
-
-    def seek(ego, others, t):
-        ahead = [b for b in others if 0 < b.x - ego.x < 80]
-        if not ahead:
-            return amax, -0.5 * ego.heading
-        target = min(ahead, key=lambda b: math.dist((b.x, b.y), (ego.x, ego.y)))
-        bearing = math.atan2(target.y - ego.y, target.x - ego.x) - ego.heading
-        return amax, float(np.clip(0.3 * bearing, -0.05, 0.05))
-
-    return {"random": random_agent, "reckless": reckless, "seek": seek}[name]
-
-
 def traffic_accel_of(traci) -> float:
     """The hardest braking any traffic vehicle type allows (its emergencyDecel): the traffic model's bound."""
     decels = [traci.vehicletype.getEmergencyDecel(t) for t in traci.vehicletype.getIDList()
-              if t != EGO and not t.startswith("DEFAULT_")]
+              if t not in (EGO, SHADOW_TYPE) and not t.startswith("DEFAULT_")]
     return max(decels)
 
 
@@ -182,8 +101,8 @@ def _start(setting: SumoSetting, folder: Path, seed: int):
     except ImportError:
         raise ConfigError("libsumo is not installed: pip install 'guardian[sumo]'") from None
     net = network.build_network(setting.net, folder)
-    routes = network.write_routes(setting.traffic, [(EGO, setting.ego_length, setting.ego_width,
-                                                    setting.traffic.emergency_decel)], folder, setting.net.edge,
+    body = (setting.ego_length, setting.ego_width, setting.traffic.emergency_decel)
+    routes = network.write_routes(setting.traffic, [(EGO, *body), (SHADOW_TYPE, *body)], folder, setting.net.edge,
                                   setting.warmup + setting.seconds + 10)
     args = ["sumo", "-n", str(net), "-r", str(routes), "--step-length", f"{setting.step_length:g}", "--seed",
             str(seed), "--collision.action", "warn", "--collision.mingap-factor", "0", "--no-step-log", "true",
@@ -191,22 +110,51 @@ def _start(setting: SumoSetting, folder: Path, seed: int):
             f"{setting.traffic.speed_factor_dev:g}"]
     if setting.traffic.sublane:
         args += ["--lateral-resolution", f"{setting.traffic.lateral_resolution:g}"]
+    if setting.guarded > 1:  # inserted at once: one that must wait does not hold up the others
+        args += ["--eager-insert", "true"]
     traci.start(args)
     return traci
 
 
+def guarded_names(setting: SumoSetting) -> list:
+    return [EGO] if setting.guarded == 1 else [f"{EGO}.{k}" for k in range(setting.guarded)]
+
+
 def _insert(traci, setting: SumoSetting, rng: np.random.Generator) -> bool:
-    lane = int(rng.integers(setting.net.lanes))
-    pos = float(rng.uniform(0.25, 0.45) * setting.net.length)
-    traci.vehicle.add(EGO, "main", typeID=EGO, departLane=str(lane), departPos=f"{pos:g}",
-                      departSpeed=f"{setting.depart_speed:g}")
+    """Insert the guarded vehicles at ``depart_speed`` (one on a random lane at 25-45 % of the road; several on free
+    lanes, evenly spaced over 10-80 % of it); False if SUMO found no room for all of them within 20 s."""
+    names, length = guarded_names(setting), setting.net.length
+    for k, name in enumerate(names):
+        if len(names) == 1:
+            lane, pos = str(int(rng.integers(setting.net.lanes))), float(rng.uniform(0.25, 0.45) * length)
+        else:
+            lane, pos = "free", length * (0.1 + 0.7 * (k + 0.5) / len(names))
+        traci.vehicle.add(name, "main", typeID=EGO, departLane=lane, departPos=f"{pos:g}",
+                          departSpeed=f"{setting.depart_speed:g}")
     for _ in range(200):
         traci.simulationStep()
-        if EGO in traci.vehicle.getIDList():
-            traci.vehicle.setSpeedMode(EGO, 0)
-            traci.vehicle.setLaneChangeMode(EGO, 0)
+        present = set(traci.vehicle.getIDList())
+        for n in names:   # SUMO drives them until all are in: at their insertion speed (SUMO's checks on)
+            if n in present:
+                traci.vehicle.setSpeed(n, setting.depart_speed)
+        if all(n in present for n in names):
+            for n in names:
+                traci.vehicle.setSpeedMode(n, 0)
+                traci.vehicle.setLaneChangeMode(n, 0)
             return True
     return False
+
+
+@dataclass
+class Guarded:
+    """One guarded vehicle of an episode: its guardian and driver, the model's next state, its start."""
+
+    name: str
+    guard: object
+    drive: object
+    start_x: float
+    expected: tuple | None = None
+    start_inside: bool | None = None
 
 
 def run_episode(setting: SumoSetting, agent: str, seed: int, guarded: bool = True,
@@ -233,81 +181,184 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
     frame = Frame(traci, setting.net.edge)
     accel = traffic_accel_of(traci)
     config = replace(config or GuardianConfig(), traffic_accel=accel)
-    kin = BicycleEgo(dt, accel, setting.ego_length, setting.ego_width, frame.lane_width, frame.n_lanes,
-                     setting.max_steering)
-    guard, model = BicycleGuardian(kin, config, meta=False), BicycleModel(setting.ego_length, dt)
-    if ask is not None and guarded:
-        guard = ask(guard, frame.road)
-    drive = agent_of(agent, setting, rng)
-    out = {"steps": 0, "collisions": 0, "sumo_collisions": 0, "at_fault": 0, "fault_rule": None, "partner": None,
-           "start_inside": None, "overrides": 0, "safety_overrides": 0, "failsafe_steps": 0, "ego_uncovered": 0,
-           "ego_worst_m": 0.0, "ego_lane_unseen": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
+    out = {"steps": 0, "vehicle_steps": 0, "collisions": 0, "sumo_collisions": 0, "shadow_collisions": 0,
+           "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0, "at_fault_after_outside": 0, "crashes": [],
+           "guarded": setting.guarded, "starts_outside": 0, "start_inside": None, "overrides": 0,
+           "safety_overrides": 0, "failsafe_steps": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
+           "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
            "inserted": _insert(traci, setting, rng), "traffic_accel": accel, "step_length": dt}
-    if not out["inserted"]:
-        return out
-    tracks, prev, expected, t0 = Tracks(), {}, None, traci.simulation.getTime()
-    start = frame.body(traci, EGO)
-    start_x, slot = start.x, frame.road.nearest_slot(start.x, start.y)
-    slots = frame.road.body_slots(start.x, start.y, start.heading, start.length, start.width)
-    for k in range(round(setting.seconds / dt)):
-        t = traci.simulation.getTime() - t0
-        ids = [v for v in traci.vehicle.getIDList() if v != EGO]
-        ego = frame.body(traci, EGO)
-        others = [frame.body(traci, v) for v in ids]
-        if expected is not None:
-            off = math.dist((ego.x, ego.y), expected[:2])
-            out["ego_worst_m"] = max(out["ego_worst_m"], off)
-            out["ego_uncovered"] += off > PLACEMENT_TOL
-        _traffic_coverage(out, prev, others, accel, dt)
-        prev = {b.name: b for b in others}
-        for b in [ego, *others]:
-            tracks.see(b.name, frame.road.body_slots(b.x, b.y, b.heading, b.length, b.width), t, b)
-        touching = [b for b in others if overlap(ego, b)]
-        sumo_hit = [c for c in traci.simulation.getCollisions() if EGO in (c.collider, c.victim)]
-        out["sumo_collisions"] += bool(sumo_hit)
-        if touching or sumo_hit:
-            partner = touching[0] if touching else next(
-                b for b in others if b.name in (sumo_hit[0].collider, sumo_hit[0].victim))
-            fault, rule = at_fault(ego, partner, tracks, t)
-            out.update(collisions=1, at_fault=int(fault), fault_rule=rule, partner=partner.name)
-            break
-        proposed = drive(ego, others, t)
-        state = ego_state(ego)
-        if guarded:
-            applied, d = guard.step(state, scene(frame, ego, others, config.reverse_reach, kin.LATERAL_MARGIN),
-                                    proposed)
-            if out["start_inside"] is None:
-                out["start_inside"] = bool(d.in_invariant_set)
+    if out["inserted"]:
+        _Episode(traci, setting, frame, config, guarded, out).run(agent, rng, ask)
+    return out
+
+
+class _Episode:
+    """The state of one inserted episode: the guarded vehicles, their shadows, the judge's tracks, the counts."""
+
+    def __init__(self, traci, setting: SumoSetting, frame: Frame, config: GuardianConfig, guarded: bool, out: dict):
+        self.traci, self.setting, self.frame, self.config, self.guarded, self.out = traci, setting, frame, config, guarded, out
+        self.kin = BicycleEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
+                              frame.lane_width, frame.n_lanes, setting.max_steering)
+        self.model = BicycleModel(setting.ego_length, setting.step_length)
+        self.shadows, self.tracks, self.prev = Shadows(frame), Tracks(), {}
+        self.cars: list = []
+        self.left: list = []     # guarded vehicles that left the road or crashed (their tallies are kept)
+
+    def run(self, agent: str, rng, ask) -> None:
+        traci, setting, dt = self.traci, self.setting, self.setting.step_length
+        single = setting.guarded == 1
+        for name in guarded_names(setting):
+            guard = BicycleGuardian(self.kin, self.config, meta=False)
+            if ask is not None and self.guarded:
+                guard = ask(guard, self.frame.road)
+            own = rng if single else np.random.default_rng([int(rng.integers(1 << 31))])  # one driver each
+            self.cars.append(Guarded(name, guard, agent_of(agent, setting, own), self.frame.body(traci, name).x))
+        t0 = traci.simulation.getTime()
+        for k in range(round(setting.seconds / dt)):
+            t = traci.simulation.getTime() - t0
+            bodies = {v: self.frame.body(traci, v) for v in traci.vehicle.getIDList() if not is_shadow(v)}
+            self._observe(bodies, t)
+            self._crashes(bodies, t)
+            if not self.cars:
+                break
+            self._decide(bodies, t)
+            traci.simulationStep()
+            self.out["steps"], self.out["vehicle_steps"] = k + 1, self.out["vehicle_steps"] + len(self.cars)
+            self._after_step()
+            if not self.cars:
+                break
+        self._close()
+
+    def _observe(self, bodies: dict, t: float) -> None:
+        names = {c.name for c in self.cars}
+        traffic = [b for v, b in bodies.items() if v not in names]
+        _traffic_coverage(self.out, self.prev, traffic, self.config.traffic_accel, self.setting.step_length)
+        self.prev = {b.name: b for b in traffic}
+        for b in bodies.values():
+            self.tracks.see(b.name, self.frame.road.body_slots(b.x, b.y, b.heading, b.length, b.width), t, b)
+        for car in self.cars:
+            me = bodies.get(car.name)
+            if car.expected is not None and me is not None:
+                off = math.dist((me.x, me.y), car.expected[:2])
+                self.out["ego_worst_m"] = max(self.out["ego_worst_m"], off)
+                self.out["ego_uncovered"] += off > PLACEMENT_TOL
+
+    def _crashes(self, bodies: dict, t: float) -> None:
+        """Each guarded vehicle touching another body (or in a collision SUMO reports): counted; both leave."""
+        reported = self.traci.simulation.getCollisions()
+        self.out["shadow_collisions"] += sum(is_shadow(c.collider) or is_shadow(c.victim) for c in reported)
+        gone = set()
+        for car in list(self.cars):
+            me = bodies.get(car.name)
+            if me is None or car.name in gone:
+                continue
+            touching = [b for v, b in bodies.items() if v != car.name and v not in gone and overlap(me, b)]
+            hit = [c for c in reported if car.name in (c.collider, c.victim)]
+            hit_others = [c.victim if c.collider == car.name else c.collider for c in hit]
+            hit_others = [v for v in hit_others if v in bodies and v not in gone]
+            if not (touching or hit_others):
+                continue
+            partner = touching[0] if touching else bodies[hit_others[0]]
+            gone |= {car.name, partner.name}
+            self._count_crash(car, partner, bool(hit), t)
+        for name in gone:
+            self._leave(name)
+
+    def _count_crash(self, car: Guarded, partner, by_sumo: bool, t: float) -> None:
+        bodies_fault, rule = at_fault(self.tracks.seen[car.name][-1][1], partner, self.tracks, t)
+        other = next((c for c in self.cars if c.name == partner.name), None)
+        culprit = car if bodies_fault else other
+        inside = None if culprit is None else culprit.start_inside is not False   # unknown: counted as inside
+        out = self.out
+        out["collisions"] += 1
+        out["sumo_collisions"] += by_sumo
+        out["between_guarded"] += other is not None
+        if culprit is not None:
+            out["at_fault"] += 1
+            out["at_fault_after_inside" if inside else "at_fault_after_outside"] += 1
+        out["crashes"].append({"vehicle": car.name, "partner": partner.name, "rule": rule, "at_fault":
+                               culprit is not None, "culprit": culprit.name if culprit else None,
+                               "start_inside": inside, "between_guarded": other is not None, "step": out["steps"],
+                               "by_sumo": by_sumo})
+
+    def _leave(self, name: str) -> None:
+        """Remove vehicle ``name`` (and, if guarded, its shadows) from SUMO and from the episode."""
+        if name in self.traci.vehicle.getIDList():
+            self.traci.vehicle.remove(name)
+        self.shadows.drop(self.traci, name)
+        for car in [c for c in self.cars if c.name == name]:
+            self.cars.remove(car)
+            self.left.append(car)
+
+    def _decide(self, bodies: dict, t: float) -> None:
+        """Every guarded vehicle's step (in Example 8's order under the ordered over-approximation)."""
+        names = {c.name for c in self.cars}
+        announced, ordered = {}, self.config.overapprox == "ordered" and len(self.cars) > 1
+        order = range(len(self.cars))
+        if ordered:
+            numbering = self.frame.road.numbering
+            order = example8_order([bodies[c.name].front for c in self.cars],
+                                   [numbering.itha(bodies[c.name].own) for c in self.cars])
+        for i in order:
+            car = self.cars[i]
+            others = [b if v not in names else replace(b, announces=True, announced=announced.get(v, frozenset()))
+                      for v, b in bodies.items() if v != car.name]
+            d = self._step(car, bodies[car.name], others, t)
+            if ordered:  # where this vehicle may be during the step, for the vehicles after it
+                announced[car.name] = frozenset(d.lanes) | frozenset(d.touched)
+
+    def _step(self, car: Guarded, me, others: list, t: float):
+        """One guarded vehicle: propose, decide (or not), move by the model, tell SUMO, place its shadows."""
+        out, kin, setting = self.out, self.kin, self.setting
+        proposed = car.drive(me, others, t)
+        seen = scene(self.frame, me, others, self.config.reverse_reach, kin.LATERAL_MARGIN)
+        if self.guarded:
+            applied, d = car.guard.step(ego_state(me), seen, proposed)
             out["overrides"] += d.changed != "none"
             out["safety_overrides"] += d.changed != "none" and not d.clipped_to_model
             out["failsafe_steps"] += d.level == "failsafe"
         else:
-            applied = (float(np.clip(proposed[0], -accel, accel)),
+            applied = (float(np.clip(proposed[0], -kin.accel, kin.accel)),
                        float(np.clip(proposed[1], -setting.max_steering, setting.max_steering)))
-            if out["start_inside"] is None:
-                _, d = guard.step(state, scene(frame, ego, others, config.reverse_reach, kin.LATERAL_MARGIN),
-                                  proposed)
-                out["start_inside"] = bool(d.in_invariant_set)
-        expected = model.step(ego.x, ego.y, ego.heading, ego.speed, float(applied[0]), float(applied[1]))
-        now = frame.road.body_slots(expected[0], expected[1], expected[2], setting.ego_length, setting.ego_width)
-        slot, slots = sumo_slot(frame, now, slot, slots), now
-        place(traci, frame, EGO, *expected, slot)
-        traci.simulationStep()
-        out["steps"] = k + 1
-        if EGO in traci.vehicle.getIDList():
-            out["ego_lane_unseen"] += frame.slot(traci.vehicle.getLaneIndex(EGO)) != slot
+            d = car.guard.step(ego_state(me), seen, proposed)[1]   # asked only for the start and the announcement
+        if car.start_inside is None:
+            car.start_inside = bool(d.in_invariant_set)
+        car.expected = self.model.step(me.x, me.y, me.heading, me.speed, float(applied[0]), float(applied[1]))
+        x, y, heading, speed = car.expected
+        own = place(self.traci, self.frame, car.name, x, y, heading, speed)
+        slots = self.frame.road.body_slots(x, y, heading, me.length, me.width)
+        self.shadows.update(self.traci, car.name, x, y, heading, speed, me.length, slots, own)
+        return d
+
+    def _after_step(self) -> None:
+        traci, out, road = self.traci, self.out, self.frame.road
+        present = set(traci.vehicle.getIDList())
         out["emergency_braking"] += traci.simulation.getEmergencyStoppingVehiclesNumber()
         out["teleports"] += traci.simulation.getStartingTeleportNumber()
-        if EGO not in traci.vehicle.getIDList() or expected[0] > setting.net.length - 50:
-            break
-    out["distance_m"] = (expected[0] if expected is not None else start_x) - start_x
-    tally = getattr(guard, "tally", None)
-    if tally is not None:
-        out["service_steps"], out["service_disagreements"] = tally.steps, len(tally.disagreements)
-        guard.session.close()
-    return out
+        for car in list(self.cars):
+            if car.name not in present:
+                out["guarded_lost"] += 1
+                self._leave(car.name)
+                continue
+            x, y, heading, _ = car.expected
+            body = road.body_slots(x, y, heading, self.setting.ego_length, self.setting.ego_width)
+            out["ego_lane_unseen"] += not body <= self.shadows.lanes_seen(traci, car.name)
+            if x > self.setting.net.length - 50:   # at the road's end: leaves
+                self._leave(car.name)
 
+    def _close(self) -> None:
+        out, cars = self.out, self.left + self.cars
+        starts = [c.start_inside for c in cars if c.start_inside is not None]
+        out["starts_outside"] = starts.count(False)
+        out["start_inside"] = all(starts) if starts else None
+        out["distance_m"] = float(sum((c.expected[0] if c.expected else c.start_x) - c.start_x for c in cars))
+        tallies = [c.guard.tally for c in cars if getattr(c.guard, "tally", None) is not None]
+        if tallies:
+            out["service_steps"] = sum(t.steps for t in tallies)
+            out["service_disagreements"] = sum(len(t.disagreements) for t in tallies)
+            for c in cars:
+                c.guard.session.close()
 
 def _traffic_coverage(out: dict, prev: dict, others: list, accel: float, dt: float) -> None:
     seen = [(prev[b.name], b) for b in others if b.name in prev]
@@ -321,26 +372,25 @@ def _traffic_coverage(out: dict, prev: dict, others: list, accel: float, dt: flo
         out["traffic_uncovered"] += braking_excess > 1e-6 or abs(progress) > 1e-6
 
 
+SUMMED = ("steps", "vehicle_steps", "collisions", "sumo_collisions", "shadow_collisions", "between_guarded", "at_fault",
+          "at_fault_after_inside", "at_fault_after_outside", "starts_outside", "overrides", "safety_overrides",
+          "failsafe_steps", "ego_uncovered", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
+          "traffic_uncovered", "emergency_braking", "teleports", "distance_m")
+
+
 def summary(results: list) -> dict:
-    """The episodes' totals; collisions after starts outside apart."""
+    """The episodes' totals; a collision at fault counts after a start inside or outside by the start of the guarded
+    vehicle at fault; ``hours`` of guarded driving (vehicle-steps)."""
     inserted = [r for r in results if r["inserted"]]
-    inside = [r for r in inserted if r["start_inside"]]
-    total = {k: sum(r[k] for r in inserted) for k in ("steps", "collisions", "sumo_collisions", "at_fault",
-                                                       "overrides", "safety_overrides", "failsafe_steps",
-                                                       "ego_uncovered", "ego_lane_unseen", "traffic_car_steps", "traffic_uncovered",
-                                                       "emergency_braking", "teleports")}
-    return {"episodes": len(results), "not_inserted": len(results) - len(inserted),
-            "starts_outside": len(inserted) - len(inside), **total,
-            "at_fault_after_inside": sum(r["at_fault"] for r in inside),
-            "at_fault_after_outside": sum(r["at_fault"] for r in inserted if not r["start_inside"]),
+    total = {k: sum(r[k] for r in inserted) for k in SUMMED}
+    return {"episodes": len(results), "not_inserted": len(results) - len(inserted), **total,
             "ego_worst_m": max((r["ego_worst_m"] for r in inserted), default=0.0),
             "traffic_braking_excess": max((r["traffic_braking_excess"] for r in inserted), default=0.0),
             "traffic_progress_excess_m": max((r["traffic_progress_excess_m"] for r in inserted), default=0.0),
-            "hours": sum(r["steps"] * r["step_length"] for r in inserted) / 3600,
+            "hours": sum(r["vehicle_steps"] * r["step_length"] for r in inserted) / 3600,
             **({"service_steps": sum(r.get("service_steps", 0) for r in inserted),
                 "service_disagreements": sum(r.get("service_disagreements", 0) for r in inserted)}
                if any("service_steps" in r for r in inserted) else {})}
-
 
 def setting_dict(setting: SumoSetting) -> dict:
     return asdict(setting)

@@ -24,6 +24,7 @@ from guardian.errors import ConfigError
 SUMO_EXTRA = "pip install 'guardian[sumo]'"
 CAR_FOLLOWING = ("Krauss", "IDM", "EIDM")
 LANE_CHANGE = ("LC2013", "SL2015")
+EXTERNAL_SPEED_FACTOR = 1.9   # vehicles moved by the guardian: SUMO refuses an insertion above lane speed x factor (< 2)
 
 
 def sumo_home() -> Path:
@@ -134,9 +135,10 @@ def vtype_xml(type_id: str, t: Traffic) -> str:
 
 
 def write_routes(t: Traffic, ego_types: list, folder: Path, edge: str, seconds: float) -> Path:
-    """The routes file: SUMO's flow of ``t`` and the guarded vehicles' types (``(id, length, width, accel)``)."""
+    """The routes file: SUMO's flow of ``t`` and the guarded vehicles' types (``(id, length, width, accel)``; their
+    speed factor is high so that SUMO takes any speed they are given, even on insertion)."""
     egos = "\n".join(f'  <vType id="{tid}" length="{length:g}" width="{width:g}" accel="{accel:g}" decel="{accel:g}" '
-                     f'emergencyDecel="{accel:g}" sigma="0" maxSpeed="60" speedFactor="1"/>'
+                     f'emergencyDecel="{accel:g}" sigma="0" maxSpeed="100" speedFactor="{EXTERNAL_SPEED_FACTOR:g}" speedDev="0"/>'
                      for tid, length, width, accel in ego_types)
     text = (f"<routes>\n  {vtype_xml('traffic', t)}\n{egos}\n  <route id=\"main\" edges=\"{edge}\"/>\n"
             f'  <flow id="traffic" type="traffic" route="main" begin="0" end="{seconds:g}" '

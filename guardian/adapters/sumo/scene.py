@@ -24,7 +24,7 @@ from guardian.model.roads import road_from_dict
 from guardian.model.scene import Car, EgoState
 from guardian.model.sensing import Sensed, scene_of
 
-KEEP_ROUTE = 2  # map by position (placement exact); the lane given is a hint SUMO follows unless the centre lies in another lane
+KEEP_ROUTE = 2  # map by position (placement exact), on the lane of the centre
 
 
 class Frame:
@@ -43,6 +43,10 @@ class Frame:
         self.x0, self.y_left = x0, shapes[n - 1][0][1]     # the leftmost lane's centre line: y = 0
         self.edge = edge
         self.road = road_from_dict({"lanes": n, "lane_width": self.lane_width})
+
+    def centre_y(self, slot: int) -> float:
+        """The centre line of lane ``slot`` in the model's frame."""
+        return slot * self.lane_width
 
     def slot(self, sumo_lane: int) -> int:
         return self.n_lanes - 1 - sumo_lane
@@ -93,26 +97,16 @@ class BicycleModel:
         return x_next, y_next, heading_next, speed + self.dt * a
 
 
-def sumo_slot(frame: Frame, body_slots: frozenset, before: int, before_slots: frozenset) -> int:
-    """The lane SUMO is told a guarded vehicle is on, given the lanes its body overlaps now and before: a lane its
-    body has just begun to overlap, else the lane it was on while its body still overlaps it. SUMO's cars react
-    to a vehicle on their own lane only (its lane index, whatever its body overlaps): told the lane it enters as
-    soon as its body overlaps it, the cars behind there brake for it, as the guardian's entry check (7.5)
-    assumes."""
-    entered = body_slots - before_slots
-    if entered:
-        return min(entered, key=lambda k: abs(k - before))
-    if before in body_slots or not body_slots:
-        return before
-    return min(body_slots, key=lambda k: abs(k - before))
-
-
-def place(traci, frame: Frame, vid: str, x: float, y: float, heading: float, speed: float, slot: int) -> None:
-    """Put guarded vehicle ``vid`` at the model's next state on lane ``slot`` (SUMO moves it in its next step)."""
+def place(traci, frame: Frame, vid: str, x: float, y: float, heading: float, speed: float) -> int:
+    """Put guarded vehicle ``vid`` at the model's next state (SUMO moves it in its next step) on the lane of its
+    centre, where SUMO maps a vehicle moved by position; that lane's slot. The other lanes its body overlaps get
+    shadows (``guardian.adapters.sumo.shadows``)."""
+    slot = frame.road.nearest_slot(x, y)
     length = traci.vehicle.getLength(vid)
     xs, ys, angle = frame.to_sumo(x, y, heading, length)
     traci.vehicle.moveToXY(vid, frame.edge, frame.sumo_lane(slot), xs, ys, angle, keepRoute=KEEP_ROUTE)
     traci.vehicle.setSpeed(vid, max(speed, 0.0))
+    return slot
 
 
 def corners(b: Sensed) -> np.ndarray:

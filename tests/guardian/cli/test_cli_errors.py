@@ -31,6 +31,8 @@ def no_work(monkeypatch):
     def started(*args, **kwargs):
         raise AssertionError("work started before the command line was checked")
 
+    import guardian.evaluation.rollouts  # noqa: F401 (binds run_episodes when imported: first imported under the
+    #                                       patch, it would keep the stub for every later test of this process)
     for target in WORK:
         monkeypatch.setattr(target, started)
 

@@ -4,7 +4,8 @@ import math
 import pytest
 
 from guardian.adapters.sumo.scene import BicycleModel, Frame, overlap
-from guardian.evaluation.sumo import ENTRY_WINDOW, SumoSetting, Tracks, at_fault, run_episode, summary
+from guardian.evaluation.sumo import SumoSetting, run_episode, summary
+from guardian.evaluation.sumo_judge import ENTRY_WINDOW, Tracks, at_fault
 from guardian.model.roads import road_from_dict
 from guardian.model.sensing import Sensed
 
@@ -176,19 +177,94 @@ def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
                        (["--scheduler", "notanaddress"], "--scheduler:"),
                        (["--flow", "1e7"], "--flow must be at most"),
                        (["--sigma", "5"], "--sigma must be in [0, 1]"),
-                       (["--emergency-decel", "1"], "--emergency-decel must be at least")):
+                       (["--emergency-decel", "1"], "--emergency-decel must be at least"),
+                       (["--overapprox", "ordered"], "does not apply to one guarded vehicle"),
+                       (["--length", "100"], "--length must be at least")):
         done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
         lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
         assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
 
 
-def test_sumo_is_told_the_lane_the_body_has_just_entered():
-    from guardian.adapters.sumo.scene import sumo_slot
+def _crawler_and_follower(shadows: bool, seconds: float = 12.0):
+    """A guarded vehicle crawling at 3 m/s with its centre in slot 1 and 0.6 m of its body over the line into slot 0;
+    a SUMO car coming up behind in slot 0 at 25 m/s. The smallest gap between the two bodies, and the lanes SUMO's
+    drivers saw the guarded body in."""
+    import tempfile
+    from pathlib import Path
 
-    f = frozenset
-    assert sumo_slot(None, f({1}), 1, f({1})) == 1               # inside its lane
-    assert sumo_slot(None, f({1, 2}), 1, f({1})) == 2            # its body begins to overlap slot 2: slot 2
-    assert sumo_slot(None, f({1, 2}), 2, f({1, 2})) == 2         # still over the line: stays on slot 2
-    assert sumo_slot(None, f({2}), 2, f({1, 2})) == 2            # wholly in slot 2
-    assert sumo_slot(None, f({1, 2}), 2, f({2})) == 1            # back towards slot 1: slot 1 at once
-    assert sumo_slot(None, f({0, 1}), 1, f({1})) == 0
+    from guardian.adapters.sumo.network import Traffic
+    from guardian.adapters.sumo.scene import place
+    from guardian.adapters.sumo.shadows import Shadows
+    from guardian.evaluation.sumo import _start
+
+    setting = SumoSetting(traffic=Traffic(vehicles_per_hour=1.0))
+    with tempfile.TemporaryDirectory() as tmp:
+        traci = _start(setting, Path(tmp), seed=0)
+        try:
+            frame, shade = Frame(traci, setting.net.edge), None
+            traci.vehicle.add("guarded", "main", typeID="guarded", departLane=str(frame.sumo_lane(1)), departPos="600",
+                              departSpeed="3")
+            traci.vehicle.add("car", "main", typeID="traffic", departLane=str(frame.sumo_lane(0)), departPos="400",
+                              departSpeed="25")
+            traci.simulationStep()
+            traci.vehicle.setLaneChangeMode("car", 0)   # it keeps its lane: it must brake
+            shade = Shadows(frame) if shadows else None
+            x, y = 600.0, frame.lane_width - (frame.lane_width / 2 - 1.0 + 0.6)   # 0.6 m over the line
+            gap, seen = math.inf, set()
+            for _ in range(round(seconds / setting.step_length)):
+                x += 3.0 * setting.step_length
+                own = place(traci, frame, "guarded", x, y, 0.0, 3.0)
+                if shade is not None:
+                    shade.update(traci, "guarded", x, y, 0.0, 3.0, 5.0, frozenset({0, 1}), own)
+                traci.simulationStep()
+                if shade is not None:
+                    seen |= shade.lanes_seen(traci, "guarded")
+                me, car = frame.body(traci, "guarded"), frame.body(traci, "car")
+                gap = min(gap, me.x - me.length / 2 - (car.x + car.length / 2))
+            return gap, seen
+        finally:
+            traci.close()
+
+
+def test_sumo_is_blind_to_a_body_over_the_line_and_the_shadow_lets_its_drivers_see_it():
+    blind_gap, _ = _crawler_and_follower(shadows=False)
+    assert blind_gap < 0, blind_gap   # SUMO's car drives into the body: it only sees its own lane's vehicles
+    gap, seen = _crawler_and_follower(shadows=True)
+    assert gap > 1.0 and seen == {0, 1}, (gap, seen)
+
+
+def test_a_shadow_follows_its_body_and_leaves_with_it():
+    from guardian.adapters.sumo.shadows import is_shadow, owner, shadow_id
+
+    assert owner(shadow_id("guarded.3", 2)) == "guarded.3" and is_shadow(shadow_id("guarded", 0))
+    assert not is_shadow("guarded") and owner("traffic.7") == "traffic.7"
+
+
+def test_many_guarded_vehicles_cause_no_collision_under_either_overapproximation():
+    from guardian.config import GuardianConfig
+
+    setting = SumoSetting(seconds=15.0, warmup=30.0, guarded=10)
+    for overapprox in ("trivial", "ordered"):
+        r = run_episode(setting, "random", seed=2, config=GuardianConfig(overapprox=overapprox))
+        assert r["inserted"] and r["vehicle_steps"] > 5 * r["steps"] > 0, r
+        assert r["at_fault"] == 0 and r["between_guarded"] == 0 and r["guarded_lost"] == 0, r["crashes"]
+        assert r["ego_lane_unseen"] == 0 and r["ego_uncovered"] == 0, r
+
+
+def test_a_collision_counts_by_the_start_of_the_vehicle_at_fault():
+    from guardian.evaluation.sumo import Guarded, _Episode
+
+    run = _Episode.__new__(_Episode)
+    run.out = {"collisions": 0, "sumo_collisions": 0, "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0,
+               "at_fault_after_outside": 0, "crashes": [], "steps": 7}
+    a, b = body("guarded.0", 0.0, 3.5), body("guarded.1", 5.5, 3.5, speed=10.0)   # a behind b: a at fault
+    run.tracks = tracks_with({}, {"guarded.0": {1}, "guarded.1": {1}})
+    run.tracks.seen = {"guarded.0": [(0.0, a)], "guarded.1": [(0.0, b)]}
+    run.cars = [Guarded("guarded.0", None, None, 0.0, start_inside=False), Guarded("guarded.1", None, None, 0.0,
+                                                                                  start_inside=True)]
+    run._count_crash(run.cars[1], a, by_sumo=False, t=0.0)   # asked for the one ahead: the one behind is at fault
+    (crash,) = run.out["crashes"]
+    assert crash["culprit"] == "guarded.0" and crash["between_guarded"] and crash["start_inside"] is False
+    assert run.out["at_fault_after_outside"] == 1 and run.out["at_fault_after_inside"] == 0
+    run._count_crash(run.cars[0], body("traffic.1", 5.5, 3.5), by_sumo=True, t=0.0)   # it ran into traffic
+    assert run.out["at_fault_after_outside"] == 2 and run.out["sumo_collisions"] == 1 and run.out["collisions"] == 2
