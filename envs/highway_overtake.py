@@ -44,6 +44,7 @@ from intention.models import intention_models, safe_set
 from intention.params import OvertakeParams
 
 INTENTIONS = ("aggressive", "cautious")
+LEAD_DEPARTURES = ("hardest", "random", "brake", "stop")  # what a lead that leaves its model does (config lead_departure)
 OVERTAKE_STATE = "OvertakeState"  # the observation type ``x = [v_ex, y_e, h, v_Lx]`` (float64)
 
 
@@ -102,6 +103,8 @@ class HighwayOvertakeEnv(AbstractEnv):
             "target_speeds": [18.0, 22.0, 26.0, 30.0, 34.0],  # [m/s] meta actions FASTER / SLOWER
             "initial_box": [[20.0, -0.2, 25.0, 15.0], [30.0, 0.2, 60.0, 25.0]],  # x0: ego behind, right lane
             "initial_region": None,          # an rcis.Region x0 must lie in (e.g. C_bnd)
+            "lead_departure": None,          # {"after": s, "behaviour": ..., "decel": m/s^2}: the lead leaves its model
+            "terminate_when_unsafe": True,   # end the episode when the state leaves the safe set (6.8)
             "params": p,
             "screen_width": 900,             # [px]
             "screen_height": 160,            # [px]
@@ -150,6 +153,10 @@ class HighwayOvertakeEnv(AbstractEnv):
             raise ConfigError(f"HighwayOvertake: config 'lanes_count' must be at least 2, got {c['lanes_count']}")
         if not (0 <= c["traffic_from_behind"] <= c["traffic_count"]):
             raise ConfigError("HighwayOvertake: config 'traffic_from_behind' must be between 0 and 'traffic_count'")
+        self._validate_departure(c["lead_departure"], p)
+        if not isinstance(c["terminate_when_unsafe"], bool):
+            raise ConfigError(f"HighwayOvertake: config 'terminate_when_unsafe' must be true or false, got "
+                              f"{c['terminate_when_unsafe']!r}")
         self._validate_observation(c["observation"], top=True)
         action = c["action"]
         kind = action.get("type")
@@ -162,6 +169,25 @@ class HighwayOvertakeEnv(AbstractEnv):
                 if lo < bounds[0] or hi > bounds[1]:
                     raise ConfigError(f"HighwayOvertake: config 'action.{key}' is {action.get(key)}; it must lie "
                                       f"in U_e = {list(bounds)} (the model's input bounds)")
+
+    @staticmethod
+    def _validate_departure(d, p) -> None:
+        if d is None:
+            return
+        if not isinstance(d, dict) or set(d) - {"after", "behaviour", "decel"} or not {"after", "behaviour"} <= set(d):
+            raise ConfigError("HighwayOvertake: config 'lead_departure' must be null or {\"after\": seconds, "
+                              f"\"behaviour\": one of {LEAD_DEPARTURES}[, \"decel\": m/s^2 for brake]}}, got {d!r}")
+        if d["behaviour"] not in LEAD_DEPARTURES:
+            raise ConfigError(f"HighwayOvertake: config 'lead_departure.behaviour' must be one of {LEAD_DEPARTURES}, "
+                              f"got {d['behaviour']!r}")
+        if not (isinstance(d["after"], (int, float)) and d["after"] >= 0):
+            raise ConfigError(f"HighwayOvertake: config 'lead_departure.after' must be a number of seconds >= 0, "
+                              f"got {d['after']!r}")
+        if ("decel" in d) != (d["behaviour"] == "brake"):
+            raise ConfigError("HighwayOvertake: config 'lead_departure.decel' is given with (and only with) "
+                              "behaviour 'brake'")
+        if "decel" in d and not (isinstance(d["decel"], (int, float)) and d["decel"] > 0):
+            raise ConfigError(f"HighwayOvertake: config 'lead_departure.decel' must be > 0, got {d['decel']!r}")
 
     def _validate_observation(self, obs: dict, top: bool) -> None:
         kind = obs.get("type")
@@ -271,12 +297,30 @@ class HighwayOvertakeEnv(AbstractEnv):
         w = draw_disturbance(self.params, self.config["disturbance"], x, self.np_random)
         x_next = self.model.system.step(x, u, w)
         x_next[0] = max(x_next[0], 0.0)  # a car held by its brake stays stopped: it never reverses
+        if self.lead_departed:
+            x_next[3] = self._departed_lead_speed(float(x[3]))
         self.vehicle.stage(x_next[0], x_next[1])
         self.lead.stage(x_next[3])
         self.road.step(self.dt)
         self.steps += 1
         self.last_transition = {"state": x, "input": u, "disturbance": w, "next_state": x_next}
         self._automatic_rendering()
+
+    @property
+    def lead_departed(self) -> bool:
+        """Has the lead left its intention model (config ``lead_departure``)?"""
+        d = self.config["lead_departure"]
+        return d is not None and self.steps * self.dt >= d["after"] - 1e-9
+
+    def _departed_lead_speed(self, v: float) -> float:
+        """The lead's next speed once it has left its model: ``hardest`` brakes at ``a_L^min`` (the traffic
+        bound), ``random`` draws an acceleration in ``U_o`` each step (within the bounds, no model), ``brake``
+        brakes at ``decel`` (beyond the bound when above 3 m/s^2), ``stop`` stands at once (beyond every
+        bound); never below 0."""
+        d, p = self.config["lead_departure"], self.params
+        accel = {"hardest": lambda: p.a_L_bounds[0], "random": lambda: self.np_random.uniform(*p.a_L_bounds),
+                 "brake": lambda: -d.get("decel", 0.0), "stop": lambda: -np.inf}[d["behaviour"]]()
+        return float(min(max(v + self.dt * accel, 0.0), p.v_Lx_bounds[1]))
 
     # ---- outcome ---------------------------------------------------------------------------------
     def left_safe_set(self) -> bool:
@@ -286,7 +330,7 @@ class HighwayOvertakeEnv(AbstractEnv):
         return float(self.vehicle.speed * self.dt / 36.0) - (10.0 if self._is_terminated() else 0.0)
 
     def _is_terminated(self) -> bool:
-        return bool(self.vehicle.crashed or self.left_safe_set())
+        return bool(self.vehicle.crashed or (self.config["terminate_when_unsafe"] and self.left_safe_set()))
 
     def _is_truncated(self) -> bool:
         return self.time >= self.config["duration"]
@@ -294,7 +338,7 @@ class HighwayOvertakeEnv(AbstractEnv):
     def _info(self, obs, action=None) -> dict:
         info = super()._info(obs, action)
         info.update({"intention": self.model.name, "overtake_state": self.overtake_state().tolist(),
-                     "unsafe": self.left_safe_set()})
+                     "unsafe": self.left_safe_set(), "lead_departed": self.lead_departed})
         if self.last_transition is not None:
             info["disturbance"] = self.last_transition["disturbance"].tolist()
         return info

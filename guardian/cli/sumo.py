@@ -4,7 +4,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 
-from guardian.cli.common import count, emit, number, positive_number, usage_error
+from guardian.cli.common import count, emit, number, output_file, output_folder, positive_number, usage_error
 from guardian.cli.progress import ProgressBar
 
 TRAFFIC = ("Krauss", "IDM", "EIDM")
@@ -26,11 +26,13 @@ def cmd_sumo(args) -> int:
         cells = _cells(args)
     except ConfigError as exc:
         return usage_error(args, str(exc))
+    if args.write_scenario:
+        return _write_scenario(args, cells[0][0])
     work = [(cell, seed) for cell in cells for seed in range(args.seed, args.seed + args.episodes)]
     progress, done, start = ProgressBar("sumo"), {}, time.perf_counter()
     try:
-        with _service(args) as ask:
-            for (cell, seed), result in _run(work, args, ask, progress):
+        with _service(args) as ask, _recorder(args) as recorder:
+            for (cell, seed), result in _run(work, args, ask, progress, recorder):
                 done.setdefault(cell, []).append((seed, result))
     except ConfigError as exc:
         return usage_error(args, str(exc))
@@ -39,7 +41,26 @@ def cmd_sumo(args) -> int:
     except KeyboardInterrupt:
         _emit(args, done, time.perf_counter() - start, interrupted=True)  # the episodes that finished
         raise
+    finally:
+        from guardian.adapters.sumo.connection import close_servers
+
+        close_servers()
     _emit(args, done, time.perf_counter() - start)
+    return 0
+
+
+def _write_scenario(args, setting) -> int:
+    """``--write-scenario DIR``: the scenario's files and a SUMO configuration naming them, and the server's command."""
+    from pathlib import Path
+
+    from guardian.adapters.sumo.network import sumo_home
+    from guardian.evaluation.sumo import write_scenario
+
+    cfg = write_scenario(setting, Path(args.write_scenario), args.seed)
+    command = [str(sumo_home() / "bin" / "sumo"), "-c", str(cfg), "--remote-port", "8813"]
+    emit({"config": str(cfg), "server_command": command}, args.json,
+         f"wrote {cfg}\nstart a SUMO server on it: {' '.join(command)}\nthen: guardian sumo --connection HOST:8813 "
+         f"--scenario-dir {cfg.parent} (the same options)")
     return 0
 
 
@@ -49,6 +70,13 @@ def _refusal(args) -> str | None:
         return "--through-service does not apply with --no-guardian (nothing is asked)"
     if args.through_service and (args.workers > 1 or args.scheduler):
         return "--through-service runs in this process: use --workers 1 and no --scheduler"
+    remote = args.connection not in ("libsumo", "traci")
+    if remote and (args.workers > 1 or args.scheduler):
+        return "--connection HOST:PORT drives one SUMO server from this process: use --workers 1 and no --scheduler"
+    if args.write_scenario and (args.campaign or args.connection != "libsumo" or args.scenario_dir):
+        return "--write-scenario writes one setting's files and starts nothing: not with --campaign, --connection or --scenario-dir"
+    if args.rerun and (args.workers > 1 or args.scheduler or args.campaign):
+        return "--rerun records in this process, one setting: use --workers 1, no --scheduler and no --campaign"
     if args.scheduler and args.workers > 1:
         return "--workers does not apply with --scheduler (the Dask cluster has its own workers)"
     if args.campaign:
@@ -83,7 +111,7 @@ def _cells(args) -> list:
 
     def setting(traffic: str, sublane: bool):
         return SumoSetting(net=HighwayNet(lanes=args.lanes, length=args.length), seconds=args.seconds,
-                           warmup=args.warmup, guarded=args.guarded,
+                           warmup=args.warmup, guarded=args.guarded, connection=args.connection,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))
 
@@ -92,15 +120,18 @@ def _cells(args) -> list:
     return [(setting(args.traffic or "Krauss", args.sublane), args.agent or "reckless", not args.no_guardian)]
 
 
-def _run(work: list, args, ask, progress):
+def _run(work: list, args, ask, progress, recorder=None):
     """``(work item, its result)`` as each episode finishes."""
+    from pathlib import Path
+
     from guardian.config import GuardianConfig
     from guardian.evaluation.sumo import run_episode
     from rcis.parallel import Jobs
 
     with Jobs(workers=args.workers, scheduler=args.scheduler) as jobs:
         config = GuardianConfig(overapprox=args.overapprox)
-        running = {k: jobs.submit(run_episode, cell[0], cell[1], seed, cell[2], config, None, ask)
+        folder = Path(args.scenario_dir) if args.scenario_dir else None
+        running = {k: jobs.submit(run_episode, cell[0], cell[1], seed, cell[2], config, folder, ask, recorder)
                    for k, (cell, seed) in enumerate(work)}
         for n, (k, value) in enumerate(jobs.as_completed(running), 1):
             progress(n, len(work))
@@ -135,6 +166,18 @@ def _text(result: dict) -> str:
 
 def _number(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+@contextlib.contextmanager
+def _recorder(args):
+    """With ``--rerun FILE``: every episode logged to FILE (``guardian.recording.sumo``); else nothing."""
+    if not args.rerun:
+        yield None
+        return
+    from guardian.recording.sumo import SumoRecorder
+
+    with SumoRecorder(args.rerun) as recorder:
+        yield recorder
 
 
 @contextlib.contextmanager
@@ -187,6 +230,16 @@ def add_commands(sub) -> None:
     p.add_argument("--through-service", action="store_true",
                    help="also ask every decision of a guardian serve scene session (started here) and count the "
                         "answers that differ from the in-process ones to the bit")
+    p.add_argument("--connection", default="libsumo", metavar="libsumo|traci|HOST:PORT",
+                   help="libsumo in this process (default); traci: SUMO in its own process over TraCI's socket; "
+                        "HOST:PORT: a SUMO server started on --write-scenario's files")
+    p.add_argument("--scenario-dir", type=output_folder, default=None, metavar="DIR",
+                   help="write each episode's scenario files here (a folder a remote server reads at the same path)")
+    p.add_argument("--write-scenario", type=output_folder, default=None, metavar="DIR",
+                   help="write the setting's scenario files and a SUMO configuration into DIR, print the server's "
+                        "command, and exit")
+    p.add_argument("--rerun", type=output_file, default=None, metavar="FILE.rrd",
+                   help="record every episode for the rerun viewer (road, cars, shadows, overrides, crashes)")
     p.add_argument("--workers", type=count(1), default=1, help="local processes running episodes (1)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="a Dask scheduler's address (tcp://host:8786) to run the episodes on")

@@ -34,12 +34,12 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
   Euler update moves a car by its *new* speed, so every step with a speed change counts), with the worst
   excess of each.
 - ``guarded_lost``: guarded vehicles SUMO removed before the road's end (never expected: counted against us).
+- ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
+  vehicles' distance along the road, summed.
 """
 from __future__ import annotations
 
-import contextlib
 import math
-import sys
 import tempfile
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from guardian.adapters.sumo import network
+from guardian.adapters.sumo.connection import close_sumo, open_sumo, parse_connection
 from guardian.adapters.sumo.network import HighwayNet, Traffic
 from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap, place, scene
 from guardian.adapters.sumo.shadows import SHADOW_TYPE, Shadows, is_shadow
@@ -76,10 +77,12 @@ class SumoSetting:
     max_steering: float = math.pi / 4
     depart_speed: float = 25.0
     guarded: int = 1            # guarded vehicles (each its own guardian and driver; every other vehicle is traffic)
+    connection: str = "libsumo"  # libsumo, traci or HOST:PORT (guardian.adapters.sumo.connection)
 
     def __post_init__(self):
         if self.guarded < 1:
             raise ConfigError(f"guarded must be >= 1, got {self.guarded}")
+        parse_connection(self.connection)
         for name in ("step_length", "warmup", "seconds", "ego_length", "ego_width", "max_steering"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -94,26 +97,36 @@ def traffic_accel_of(traci) -> float:
     return max(decels)
 
 
-def _start(setting: SumoSetting, folder: Path, seed: int):
-    try:
-        with contextlib.redirect_stdout(sys.stderr):  # libsumo prints its warnings (pyarrow's version) on stdout
-            import libsumo as traci
-    except ImportError:
-        raise ConfigError("libsumo is not installed: pip install 'guardian[sumo]'") from None
+def sumo_args(setting: SumoSetting, folder: Path, seed: int) -> list:
+    """SUMO's command line (without the binary) for ``setting`` with ``seed``; the network and routes it names are
+    written into ``folder``."""
     net = network.build_network(setting.net, folder)
     body = (setting.ego_length, setting.ego_width, setting.traffic.emergency_decel)
     routes = network.write_routes(setting.traffic, [(EGO, *body), (SHADOW_TYPE, *body)], folder, setting.net.edge,
                                   setting.warmup + setting.seconds + 10)
-    args = ["sumo", "-n", str(net), "-r", str(routes), "--step-length", f"{setting.step_length:g}", "--seed",
-            str(seed), "--collision.action", "warn", "--collision.mingap-factor", "0", "--no-step-log", "true",
-            "--no-warnings", "true", "--duration-log.disable", "true", "--default.speeddev",
+    args = ["-n", str(net.resolve()), "-r", str(routes.resolve()), "--step-length", f"{setting.step_length:g}",
+            "--seed", str(seed), "--collision.action", "warn", "--collision.mingap-factor", "0", "--no-step-log",
+            "true", "--no-warnings", "true", "--duration-log.disable", "true", "--default.speeddev",
             f"{setting.traffic.speed_factor_dev:g}"]
     if setting.traffic.sublane:
         args += ["--lateral-resolution", f"{setting.traffic.lateral_resolution:g}"]
     if setting.guarded > 1:  # inserted at once: one that must wait does not hold up the others
         args += ["--eager-insert", "true"]
-    traci.start(args)
-    return traci
+    return args
+
+
+def write_scenario(setting: SumoSetting, folder: Path, seed: int = 0) -> Path:
+    """The scenario's files in ``folder`` and ``folder``/guardian.sumocfg naming them, for a SUMO server
+    (``sumo -c guardian.sumocfg --remote-port PORT``) that a ``HOST:PORT`` connection then reloads per episode."""
+    import subprocess
+
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg = (folder / "guardian.sumocfg").resolve()
+    done = subprocess.run([str(network.sumo_home() / "bin" / "sumo"), *sumo_args(setting, folder, seed),
+                           "--save-configuration", str(cfg)], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise ConfigError(f"sumo could not write {cfg}: {done.stderr.strip()[-500:]}")
+    return cfg
 
 
 def guarded_names(setting: SumoSetting) -> list:
@@ -155,26 +168,31 @@ class Guarded:
     start_x: float
     expected: tuple | None = None
     start_inside: bool | None = None
+    lane: int | None = None       # the slot of its centre at the last step (lane changes are counted on it)
 
 
 def run_episode(setting: SumoSetting, agent: str, seed: int, guarded: bool = True,
-                config: GuardianConfig | None = None, folder: Path | None = None, ask=None) -> dict:
+                config: GuardianConfig | None = None, folder: Path | None = None, ask=None, recorder=None) -> dict:
     """One episode; its counts (the module's docstring says each one's rule).
 
     ``ask(guard, road)``: a decision object to use instead of ``guard`` (its ``step`` the same), e.g. a
     ``guardian.client.shadow.Shadow`` that also asks a service session every step; its ``tally`` (steps asked,
-    disagreements) is reported as ``service_steps`` and ``service_disagreements``, and its ``session`` closed."""
+    disagreements) is reported as ``service_steps`` and ``service_disagreements``, and its ``session`` closed.
+    ``folder``: where the scenario's files are written (a temporary folder by default; with a ``HOST:PORT``
+    connection, a folder the server reads at the same path). ``recorder``: a
+    ``guardian.recording.sumo.SumoRecorder`` the episode is logged to."""
     rng = np.random.default_rng([seed, 1])
     with tempfile.TemporaryDirectory() as tmp:
         folder = folder or Path(tmp)
-        traci = _start(setting, folder, seed)
+        traci = open_sumo(setting.connection, sumo_args(setting, folder, seed))
         try:
-            return _episode(traci, setting, agent, rng, guarded, config, ask)
+            return _episode(traci, setting, agent, rng, guarded, config, ask, recorder, f"{agent} seed {seed}")
         finally:
-            traci.close()
+            close_sumo(setting.connection, traci)
 
 
-def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config, ask=None) -> dict:
+def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config, ask=None, recorder=None,
+             label: str = "") -> dict:
     dt = setting.step_length
     for _ in range(round(setting.warmup / dt)):
         traci.simulationStep()
@@ -184,20 +202,22 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
     out = {"steps": 0, "vehicle_steps": 0, "collisions": 0, "sumo_collisions": 0, "shadow_collisions": 0,
            "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0, "at_fault_after_outside": 0, "crashes": [],
            "guarded": setting.guarded, "starts_outside": 0, "start_inside": None, "overrides": 0,
-           "safety_overrides": 0, "failsafe_steps": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
+           "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
            "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
            "inserted": _insert(traci, setting, rng), "traffic_accel": accel, "step_length": dt}
     if out["inserted"]:
-        _Episode(traci, setting, frame, config, guarded, out).run(agent, rng, ask)
+        _Episode(traci, setting, frame, config, guarded, out, recorder).run(agent, rng, ask, label)
     return out
 
 
 class _Episode:
     """The state of one inserted episode: the guarded vehicles, their shadows, the judge's tracks, the counts."""
 
-    def __init__(self, traci, setting: SumoSetting, frame: Frame, config: GuardianConfig, guarded: bool, out: dict):
+    def __init__(self, traci, setting: SumoSetting, frame: Frame, config: GuardianConfig, guarded: bool, out: dict,
+                 recorder=None):
         self.traci, self.setting, self.frame, self.config, self.guarded, self.out = traci, setting, frame, config, guarded, out
+        self.recorder = recorder
         self.kin = BicycleEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
                               frame.lane_width, frame.n_lanes, setting.max_steering)
         self.model = BicycleModel(setting.ego_length, setting.step_length)
@@ -205,7 +225,7 @@ class _Episode:
         self.cars: list = []
         self.left: list = []     # guarded vehicles that left the road or crashed (their tallies are kept)
 
-    def run(self, agent: str, rng, ask) -> None:
+    def run(self, agent: str, rng, ask, label: str = "") -> None:
         traci, setting, dt = self.traci, self.setting, self.setting.step_length
         single = setting.guarded == 1
         for name in guarded_names(setting):
@@ -215,9 +235,13 @@ class _Episode:
             own = rng if single else np.random.default_rng([int(rng.integers(1 << 31))])  # one driver each
             self.cars.append(Guarded(name, guard, agent_of(agent, setting, own), self.frame.body(traci, name).x))
         t0 = traci.simulation.getTime()
+        if self.recorder is not None:
+            self.recorder.start_episode(label, self.frame, self.frame.body(traci, self.cars[0].name))
         for k in range(round(setting.seconds / dt)):
             t = traci.simulation.getTime() - t0
             bodies = {v: self.frame.body(traci, v) for v in traci.vehicle.getIDList() if not is_shadow(v)}
+            if self.recorder is not None:
+                self._record(t, bodies)
             self._observe(bodies, t)
             self._crashes(bodies, t)
             if not self.cars:
@@ -229,6 +253,13 @@ class _Episode:
             if not self.cars:
                 break
         self._close()
+
+    def _record(self, t: float, bodies: dict) -> None:
+        names = {c.name for c in self.cars}
+        shadows = [self.frame.body(self.traci, v) for v in self.traci.vehicle.getIDList() if is_shadow(v)]
+        self.recorder.step(t)
+        self.recorder.bodies([b for v, b in bodies.items() if v in names],
+                             [b for v, b in bodies.items() if v not in names], shadows)
 
     def _observe(self, bodies: dict, t: float) -> None:
         names = {c.name for c in self.cars}
@@ -281,6 +312,8 @@ class _Episode:
                                culprit is not None, "culprit": culprit.name if culprit else None,
                                "start_inside": inside, "between_guarded": other is not None, "step": out["steps"],
                                "by_sumo": by_sumo})
+        if self.recorder is not None:
+            self.recorder.crash(out["crashes"][-1])
 
     def _leave(self, name: str) -> None:
         """Remove vehicle ``name`` (and, if guarded, its shadows) from SUMO and from the episode."""
@@ -324,6 +357,8 @@ class _Episode:
             d = car.guard.step(ego_state(me), seen, proposed)[1]   # asked only for the start and the announcement
         if car.start_inside is None:
             car.start_inside = bool(d.in_invariant_set)
+        if self.recorder is not None:
+            self.recorder.decision(car.name, proposed, applied, d if self.guarded else None)
         car.expected = self.model.step(me.x, me.y, me.heading, me.speed, float(applied[0]), float(applied[1]))
         x, y, heading, speed = car.expected
         own = place(self.traci, self.frame, car.name, x, y, heading, speed)
@@ -342,6 +377,9 @@ class _Episode:
                 self._leave(car.name)
                 continue
             x, y, heading, _ = car.expected
+            lane = road.nearest_slot(x, y)
+            out["lane_changes"] += car.lane is not None and lane != car.lane
+            car.lane = lane
             body = road.body_slots(x, y, heading, self.setting.ego_length, self.setting.ego_width)
             out["ego_lane_unseen"] += not body <= self.shadows.lanes_seen(traci, car.name)
             if x > self.setting.net.length - 50:   # at the road's end: leaves
@@ -374,6 +412,7 @@ def _traffic_coverage(out: dict, prev: dict, others: list, accel: float, dt: flo
 
 SUMMED = ("steps", "vehicle_steps", "collisions", "sumo_collisions", "shadow_collisions", "between_guarded", "at_fault",
           "at_fault_after_inside", "at_fault_after_outside", "starts_outside", "overrides", "safety_overrides",
+          "lane_changes",
           "failsafe_steps", "ego_uncovered", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
           "traffic_uncovered", "emergency_braking", "teleports", "distance_m")
 

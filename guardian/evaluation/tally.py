@@ -57,7 +57,8 @@ class HighwayTally(Observer):
         self.totals = {k: 0 for k in COUNTS}
         self.totals["crashes"] = []
         if self.overtake:
-            self.totals["wrong_identifications"] = 0
+            self.totals.update(wrong_identifications=0, safe_set_exits=0, collisions_after_safe_set_exit=0,
+                               ego_at_fault_after_safe_set_exit=0, lead_departures=0)
         self.identify, self.distance, self.monitor_worst = [], 0.0, {}
         self.per_car = None          # per controlled car (several): CAR_COUNTS and distance
         self.multi = False
@@ -82,6 +83,7 @@ class HighwayTally(Observer):
         if self.recorder is not None:
             self.recorder.start_episode(env, episode)
         self.episode, self.t = episode, 0
+        self.exited = self.departed = False
         self.road = read_road(base)
         self.on_map = isinstance(self.road, RoadMap)
         self.cars = controlled_vehicles(base)
@@ -166,6 +168,9 @@ class HighwayTally(Observer):
                 totals["model_violation_steps"] += int(sum(self.monitor.overtake_transition(
                     tr["state"], tr["input"], tr["next_state"])) > 0)
             totals["safety_violations"] += int(info["unsafe"])
+            totals["safe_set_exits"] += int(info["unsafe"] and not self.exited)
+            totals["lead_departures"] += int(info["lead_departed"] and not self.departed)
+            self.exited, self.departed = self.exited or info["unsafe"], self.departed or info["lead_departed"]
         else:
             totals["safety_violations"] += sum(not c.inside(base) for c in self.checkers)
         if self.recorder is not None:
@@ -185,6 +190,10 @@ class HighwayTally(Observer):
         row = {"episode": self.episode, "step": self.t, "fault": crash.fault, "rule": crash.rule,
                "partner": crash.partner, "start_inside": self.inside,
                "level": g.get("level"), "reasons": g.get("reasons", [])}
+        if self.overtake:
+            row.update(after_safe_set_exit=self.exited, lead_departed=self.departed)
+            totals["collisions_after_safe_set_exit"] += int(self.exited)
+            totals["ego_at_fault_after_safe_set_exit"] += int(self.exited and at_fault)
         if self.guardian:
             blind = self.last_blind[crash.car]
             row["steps_since_traffic_blind"] = None if blind is None else self.t - blind
@@ -238,6 +247,11 @@ class HighwayTally(Observer):
           ahead).
         * ``safety_violations``: steps ending outside the safe set (6.8) (HighwayOvertake) or with no
           self-safe input left (highway-env roads; per guarded car), with or without the guardian.
+        * HighwayOvertake: ``safe_set_exits``: episodes whose state left the safe set (6.8) (the episode ends
+          there unless the env's ``terminate_when_unsafe`` is false); ``collisions_after_safe_set_exit`` and
+          ``ego_at_fault_after_safe_set_exit``: collisions in an episode after its exit (each crash row says
+          ``after_safe_set_exit``), whatever the start; ``lead_departures``: episodes whose lead left its
+          intention model (the env's ``lead_departure``; crash rows say ``lead_departed``).
         * ``unchecked_entries``: lanes a guarded car's body began to overlap in a step whose record lists the
           lane neither among the lanes the guardian held the car in at the step's start nor among the
           entries it checked and found responsible during the step (``guardian.wrappers.record.allowed_lanes``; on

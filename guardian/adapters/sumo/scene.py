@@ -41,6 +41,7 @@ class Frame:
             raise ValueError(f"edge {edge!r} has lanes of different widths {sorted(widths)}")
         self.n_lanes, self.lane_width = n, widths.pop()
         self.x0, self.y_left = x0, shapes[n - 1][0][1]     # the leftmost lane's centre line: y = 0
+        self.length = x1 - x0
         self.edge = edge
         self.road = road_from_dict({"lanes": n, "lane_width": self.lane_width})
 

@@ -179,7 +179,12 @@ def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
                        (["--sigma", "5"], "--sigma must be in [0, 1]"),
                        (["--emergency-decel", "1"], "--emergency-decel must be at least"),
                        (["--overapprox", "ordered"], "does not apply to one guarded vehicle"),
-                       (["--length", "100"], "--length must be at least")):
+                       (["--length", "100"], "--length must be at least"),
+                       (["--connection", "nowhere"], "libsumo, traci or HOST:PORT"),
+                       (["--connection", "127.0.0.1:1"], "no SUMO server answers at 127.0.0.1:1"),
+                       (["--connection", "127.0.0.1:1", "--workers", "2"], "drives one SUMO server"),
+                       (["--write-scenario", "x", "--campaign"], "--write-scenario writes one setting"),
+                       (["--rerun", "x.rrd", "--workers", "2"], "--rerun records in this process")):
         done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
         lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
         assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
@@ -195,11 +200,12 @@ def _crawler_and_follower(shadows: bool, seconds: float = 12.0):
     from guardian.adapters.sumo.network import Traffic
     from guardian.adapters.sumo.scene import place
     from guardian.adapters.sumo.shadows import Shadows
-    from guardian.evaluation.sumo import _start
+    from guardian.evaluation.sumo import sumo_args
+    from guardian.adapters.sumo.connection import open_sumo
 
     setting = SumoSetting(traffic=Traffic(vehicles_per_hour=1.0))
     with tempfile.TemporaryDirectory() as tmp:
-        traci = _start(setting, Path(tmp), seed=0)
+        traci = open_sumo("libsumo", sumo_args(setting, Path(tmp), seed=0))
         try:
             frame, shade = Frame(traci, setting.net.edge), None
             traci.vehicle.add("guarded", "main", typeID="guarded", departLane=str(frame.sumo_lane(1)), departPos="600",
@@ -255,6 +261,7 @@ def test_a_collision_counts_by_the_start_of_the_vehicle_at_fault():
     from guardian.evaluation.sumo import Guarded, _Episode
 
     run = _Episode.__new__(_Episode)
+    run.recorder = None
     run.out = {"collisions": 0, "sumo_collisions": 0, "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0,
                "at_fault_after_outside": 0, "crashes": [], "steps": 7}
     a, b = body("guarded.0", 0.0, 3.5), body("guarded.1", 5.5, 3.5, speed=10.0)   # a behind b: a at fault
@@ -268,3 +275,59 @@ def test_a_collision_counts_by_the_start_of_the_vehicle_at_fault():
     assert run.out["at_fault_after_outside"] == 1 and run.out["at_fault_after_inside"] == 0
     run._count_crash(run.cars[0], body("traffic.1", 5.5, 3.5), by_sumo=True, t=0.0)   # it ran into traffic
     assert run.out["at_fault_after_outside"] == 2 and run.out["sumo_collisions"] == 1 and run.out["collisions"] == 2
+
+
+# ---- the connections: libsumo, SUMO in its own process over TraCI, a SUMO server ----------------------------
+def test_traci_and_a_sumo_server_give_the_episodes_libsumo_gives(tmp_path):
+    import socket
+    import subprocess
+
+    from guardian.adapters.sumo.connection import close_servers
+    from guardian.adapters.sumo.network import sumo_home
+    from guardian.evaluation.sumo import write_scenario
+
+    setting = SumoSetting(seconds=8.0, warmup=20.0, guarded=2)
+    here = [run_episode(setting, "seek", seed) for seed in (1, 2)]
+    local = [run_episode(SumoSetting(seconds=8.0, warmup=20.0, guarded=2, connection="traci"), "seek", seed)
+             for seed in (1, 2)]
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = write_scenario(setting, tmp_path)
+    server = subprocess.Popen([str(sumo_home() / "bin" / "sumo"), "-c", str(cfg), "--remote-port", str(port)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        remote = SumoSetting(seconds=8.0, warmup=20.0, guarded=2, connection=f"127.0.0.1:{port}")
+        served = [run_episode(remote, "seek", seed, folder=tmp_path) for seed in (1, 2)]
+        close_servers()
+        assert server.wait(timeout=30) == 0   # the server ends when its client closes
+    finally:
+        if server.poll() is None:
+            server.kill()
+    assert here[0]["steps"] > 0 and here[0]["vehicle_steps"] > here[0]["steps"]
+    assert local == here and served == here
+
+
+def test_a_connection_is_checked_before_any_work():
+    from guardian.adapters.sumo.connection import parse_connection
+    from guardian.errors import ConfigError
+
+    assert parse_connection("traci") == "traci" and parse_connection("sim.example:8813") == "sim.example:8813"
+    for bad in ("libsumo2", "host:", ":8813", "host:0", "host:70000", "host:port"):
+        with pytest.raises(ConfigError, match="libsumo, traci or HOST:PORT"):
+            SumoSetting(connection=bad)
+
+
+def test_a_rerun_recording_shows_every_body_and_every_safety_override(tmp_path):
+    from guardian.recording.rerun import read_entities, read_texts
+    from guardian.recording.sumo import SumoRecorder
+
+    path = tmp_path / "sumo.rrd"
+    with SumoRecorder(path) as recorder:
+        r = run_episode(SumoSetting(seconds=10.0, warmup=20.0, guarded=2), "random", seed=1, recorder=recorder)
+    rows = read_entities(path)
+    assert rows["/road/guarded"] == rows["/road/traffic"] == rows["/road/shadows"] == r["steps"] > 0
+    assert rows["/inputs/guarded.0/acceleration/applied"] == r["steps"]
+    overrides = read_texts(path, "/events/override")
+    assert len(overrides) == r["safety_overrides"] > 0 and all(t.startswith("t=") for t in overrides)
+    assert read_texts(path, "/events/episode") == ["random seed 1 starts"]
