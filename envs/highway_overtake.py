@@ -116,6 +116,7 @@ class HighwayOvertakeEnv(AbstractEnv):
     def __init__(self, config: dict | None = None, render_mode: str | None = None):
         self.lead = None
         self.last_transition = None
+        self.lead_off_model = False
         if render_mode == "rgb_array":  # SDL's offscreen driver: no display is looked for (and no XDG_RUNTIME_DIR
             os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")  # error); "dummy" would stop highway-env drawing
         super().__init__(config, render_mode)
@@ -232,6 +233,7 @@ class HighwayOvertakeEnv(AbstractEnv):
         return int(self.config["lanes_count"]) - 1
 
     def _reset(self) -> None:
+        self.lead_off_model = False
         self._create_road()
         self._create_vehicles()
 
@@ -297,7 +299,8 @@ class HighwayOvertakeEnv(AbstractEnv):
         w = draw_disturbance(self.params, self.config["disturbance"], x, self.np_random)
         x_next = self.model.system.step(x, u, w)
         x_next[0] = max(x_next[0], 0.0)  # a car held by its brake stays stopped: it never reverses
-        if self.lead_departed:
+        self.lead_off_model = self.lead_off_model or self.lead_departed
+        if self.lead_off_model:
             x_next[3] = self._departed_lead_speed(float(x[3]))
         self.vehicle.stage(x_next[0], x_next[1])
         self.lead.stage(x_next[3])
@@ -308,7 +311,8 @@ class HighwayOvertakeEnv(AbstractEnv):
 
     @property
     def lead_departed(self) -> bool:
-        """Has the lead left its intention model (config ``lead_departure``)?"""
+        """Is the lead's next transition outside its intention model (config ``lead_departure``: from ``after``
+        seconds on)? ``info["lead_departed"]``: was this step's?"""
         d = self.config["lead_departure"]
         return d is not None and self.steps * self.dt >= d["after"] - 1e-9
 
@@ -338,7 +342,7 @@ class HighwayOvertakeEnv(AbstractEnv):
     def _info(self, obs, action=None) -> dict:
         info = super()._info(obs, action)
         info.update({"intention": self.model.name, "overtake_state": self.overtake_state().tolist(),
-                     "unsafe": self.left_safe_set(), "lead_departed": self.lead_departed})
+                     "unsafe": self.left_safe_set(), "lead_departed": self.lead_off_model})
         if self.last_transition is not None:
             info["disturbance"] = self.last_transition["disturbance"].tolist()
         return info

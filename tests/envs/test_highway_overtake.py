@@ -85,6 +85,12 @@ def test_traffic_never_enters_the_scenarios_right_lane():
     ({"disturbance": "gusty"}, "disturbance"),
     ({"traffic_from_behind": 9, "traffic_count": 2}, "traffic_from_behind"),
     ({"no_such_key": 1}, "unknown config keys"),
+    ({"lead_departure": {"after": 1, "behaviour": "teleport"}}, "lead_departure.behaviour"),
+    ({"lead_departure": {"after": -1, "behaviour": "stop"}}, "lead_departure.after"),
+    ({"lead_departure": {"after": 1, "behaviour": "brake"}}, "lead_departure.decel"),
+    ({"lead_departure": {"after": 1, "behaviour": "stop", "decel": 4}}, "lead_departure.decel"),
+    ({"lead_departure": {"behaviour": "stop"}}, "must be null or"),
+    ({"terminate_when_unsafe": "no"}, "terminate_when_unsafe"),
 ])
 def test_configs_it_cannot_simulate_are_refused(config, match):
     with pytest.raises(ConfigError, match=match):
@@ -117,3 +123,43 @@ def test_every_action_type_acts_on_U_e_and_is_supervised(action, traffic_library
             np.asarray(info["guardian"]["applied_action"], dtype=env.action_space.dtype)
             if not isinstance(info["guardian"]["applied_action"], int) else info["guardian"]["applied_action"])
 
+
+
+@pytest.mark.parametrize("departure,next_speed", [
+    ({"behaviour": "hardest"}, lambda v, dt: max(v - 3.0 * dt, 0.0)),
+    ({"behaviour": "brake", "decel": 6.0}, lambda v, dt: max(v - 6.0 * dt, 0.0)),
+    ({"behaviour": "stop"}, lambda v, dt: 0.0),
+    ({"behaviour": "random"}, None),
+])
+def test_a_departed_lead_drives_by_its_behaviour_and_the_episode_goes_on_past_an_exit(departure, next_speed):
+    env = gym.make("guardian/HighwayOvertake-v0", config={"lead_departure": {"after": 1.0, **departure},
+                                                          "terminate_when_unsafe": False, "traffic_count": 0,
+                                                          "traffic_from_behind": 0})
+    obs, info = env.reset(seed=3)
+    base, dt, exited = env.unwrapped, env.unwrapped.dt, False
+    for k in range(80):
+        v = float(base.overtake_state()[3])
+        obs, _, terminated, truncated, info = env.step(np.array([3.0, 0.0]))   # full throttle, own lane
+        departed = k * dt >= 1.0 - 1e-9   # this step's transition: from 1 s on
+        assert info["lead_departed"] == departed
+        if departed and next_speed is not None:
+            assert info["overtake_state"][3] == pytest.approx(next_speed(v, dt), abs=1e-9)
+        elif departed:   # random: an acceleration within U_o each step
+            assert -3.0 * dt - 1e-9 <= info["overtake_state"][3] - v <= 3.0 * dt + 1e-9 or info["overtake_state"][3] == 0
+        exited = exited or info["unsafe"]
+        assert not terminated or info["crashed"]   # only a crash ends it, not the exit
+        if terminated or truncated:
+            break
+    if departure["behaviour"] == "stop":
+        assert exited   # full throttle into a lead that stood at once: out of the safe set, and on
+
+
+def test_by_default_a_safe_set_exit_ends_the_episode():
+    env = gym.make("guardian/HighwayOvertake-v0", config={"lead_departure": {"after": 0.5, "behaviour": "stop"},
+                                                          "traffic_count": 0, "traffic_from_behind": 0})
+    env.reset(seed=3)
+    for _ in range(80):
+        _, _, terminated, truncated, info = env.step(np.array([3.0, 0.0]))
+        if terminated or truncated:
+            break
+    assert terminated and info["unsafe"]

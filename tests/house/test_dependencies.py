@@ -19,7 +19,7 @@ import pytest
 from project import ROOT
 
 PACKAGES = ("guardian", "envs", "rcis", "intention", "itha")  # setup.py's find_packages(include=...)
-EXTRAS = {"rl": {"stable-baselines3", "torch"}, "sumo": {"eclipse-sumo", "libsumo"}}  # extra -> its distributions
+EXTRAS = {"rl": {"stable-baselines3", "torch"}, "sumo": {"eclipse-sumo", "libsumo", "traci"}}  # extra -> its distributions
 
 
 def _dist_name(requirement: str) -> str:

@@ -18,3 +18,19 @@ def test_the_tally_counts_with_the_runs_own_configuration():
     assert tight["steps"] == loose["steps"] and tight["collisions"] == loose["collisions"]
     assert tight["starts_outside"] > loose["starts_outside"]
     assert tight["safety_violations"] > loose["safety_violations"]
+
+
+def test_crashes_after_a_safe_set_exit_are_counted_and_marked(traffic_library):
+    """A lead that stands still at once after 0.5 s, an unguarded ego that keeps its lane at full throttle, and
+    episodes that go on past the safe-set exit: every crash comes after the exit and is counted so; the same
+    run ending at the exit (the default) never sees a crash."""
+    departure = {"lead_departure": {"after": 0.5, "behaviour": "stop"}, "traffic_count": 0, "traffic_from_behind": 0}
+    on = highway_rollouts(Rollout("guardian/HighwayOvertake-v0", "bad", guarded=False, library=traffic_library,
+                                  env_config={**departure, "terminate_when_unsafe": False}), 3, 0)
+    assert on["lead_departures"] == on["safe_set_exits"] == 3 and on["collisions"] >= 1, on
+    assert on["collisions_after_safe_set_exit"] == on["collisions"]
+    assert on["ego_at_fault_after_safe_set_exit"] == on["ego_at_fault_collisions"] + on["ego_at_fault_after_outside_starts"]
+    assert all(c["after_safe_set_exit"] and c["lead_departed"] for c in on["crashes"])
+    ended = highway_rollouts(Rollout("guardian/HighwayOvertake-v0", "bad", guarded=False, library=traffic_library,
+                                     env_config=departure), 3, 0)
+    assert ended["safe_set_exits"] == 3 and ended["collisions"] == 0
