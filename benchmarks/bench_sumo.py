@@ -41,7 +41,11 @@ def main() -> None:
     p.add_argument("--traffic", default="Krauss", choices=("Krauss", "IDM", "EIDM"))
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
-    import libsumo
+    import contextlib
+    import sys
+
+    with contextlib.redirect_stdout(sys.stderr):  # libsumo warns about pyarrow's version on stdout
+        import libsumo
 
     times = {"sumo_step": [], "scene": [], "decision": []}
     vehicles = []

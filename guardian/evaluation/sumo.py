@@ -53,10 +53,11 @@ from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap
 from guardian.adapters.sumo.shadows import SHADOW_TYPE, Shadows, is_shadow
 from guardian.config import GuardianConfig
 from guardian.decide.bicycle import BicycleGuardian
-from guardian.decide.kinematics import BicycleEgo
+from guardian.decide.kinematics import BicycleEgo, RoadMapEgo
 from guardian.errors import ConfigError
 from guardian.evaluation.sumo_agents import agent_of
 from guardian.evaluation.sumo_judge import Tracks, at_fault
+from guardian.model.roads import RoadMap
 from itha.road import example8_order
 
 EGO = "guarded"
@@ -102,7 +103,7 @@ def sumo_args(setting: SumoSetting, folder: Path, seed: int) -> list:
     written into ``folder``."""
     net = network.build_network(setting.net, folder)
     body = (setting.ego_length, setting.ego_width, setting.traffic.emergency_decel)
-    routes = network.write_routes(setting.traffic, [(EGO, *body), (SHADOW_TYPE, *body)], folder, setting.net.edge,
+    routes = network.write_routes(setting.traffic, [(EGO, *body), (SHADOW_TYPE, *body)], folder, setting.net,
                                   setting.warmup + setting.seconds + 10)
     args = ["-n", str(net.resolve()), "-r", str(routes.resolve()), "--step-length", f"{setting.step_length:g}",
             "--seed", str(seed), "--collision.action", "warn", "--collision.mingap-factor", "0", "--no-step-log",
@@ -133,17 +134,22 @@ def guarded_names(setting: SumoSetting) -> list:
     return [EGO] if setting.guarded == 1 else [f"{EGO}.{k}" for k in range(setting.guarded)]
 
 
-def _insert(traci, setting: SumoSetting, rng: np.random.Generator) -> bool:
-    """Insert the guarded vehicles at ``depart_speed`` (one on a random lane at 25-45 % of the road; several on free
-    lanes, evenly spaced over 10-80 % of it); False if SUMO found no room for all of them within 20 s."""
+def _insert(traci, setting: SumoSetting, frame: Frame, rng: np.random.Generator) -> bool:
+    """Insert the guarded vehicles at ``depart_speed`` (one on a random main lane at 25-45 % of the road; several on
+    free lanes, evenly spaced over 10-80 % of it); False if SUMO found no room for all of them within 20 s."""
     names, length = guarded_names(setting), setting.net.length
     for k, name in enumerate(names):
         if len(names) == 1:
-            lane, pos = str(int(rng.integers(setting.net.lanes))), float(rng.uniform(0.25, 0.45) * length)
+            index, pos = int(rng.integers(setting.net.lanes)), float(rng.uniform(0.25, 0.45) * length)
+            edge, index = frame.lane_at(setting.net.lanes - 1 - index, pos)
+            lane = str(index)
         else:
-            lane, pos = "free", length * (0.1 + 0.7 * (k + 0.5) / len(names))
-        traci.vehicle.add(name, "main", typeID=EGO, departLane=lane, departPos=f"{pos:g}",
-                          departSpeed=f"{setting.depart_speed:g}")
+            pos = length * (0.1 + 0.7 * (k + 0.5) / len(names))
+            edge, lane = frame.edge_at(pos), "free"
+            if frame.lanes_of[edge] > setting.net.lanes:   # not on an acceleration lane: just after it
+                pos, edge = frame.extent[edge][1] + 10.0 + k, frame.edges[frame.edges.index(edge) + 1]
+        traci.vehicle.add(name, f"from_{edge}", typeID=EGO, departLane=lane,
+                          departPos=f"{pos - frame.extent[edge][0]:g}", departSpeed=f"{setting.depart_speed:g}")
     for _ in range(200):
         traci.simulationStep()
         present = set(traci.vehicle.getIDList())
@@ -196,7 +202,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
     dt = setting.step_length
     for _ in range(round(setting.warmup / dt)):
         traci.simulationStep()
-    frame = Frame(traci, setting.net.edge)
+    frame = Frame(traci, setting.net.corridor, setting.net.ramp)
     accel = traffic_accel_of(traci)
     config = replace(config or GuardianConfig(), traffic_accel=accel)
     out = {"steps": 0, "vehicle_steps": 0, "collisions": 0, "sumo_collisions": 0, "shadow_collisions": 0,
@@ -205,7 +211,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
            "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
-           "inserted": _insert(traci, setting, rng), "traffic_accel": accel, "step_length": dt}
+           "inserted": _insert(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
     if out["inserted"]:
         _Episode(traci, setting, frame, config, guarded, out, recorder).run(agent, rng, ask, label)
     return out
@@ -218,8 +224,12 @@ class _Episode:
                  recorder=None):
         self.traci, self.setting, self.frame, self.config, self.guarded, self.out = traci, setting, frame, config, guarded, out
         self.recorder = recorder
-        self.kin = BicycleEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
-                              frame.lane_width, frame.n_lanes, setting.max_steering)
+        if isinstance(frame.road, RoadMap):
+            self.kin = RoadMapEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
+                                  frame.road, setting.max_steering)
+        else:
+            self.kin = BicycleEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
+                                  frame.lane_width, frame.n_lanes, setting.max_steering)
         self.model = BicycleModel(setting.ego_length, setting.step_length)
         self.shadows, self.tracks, self.prev = Shadows(frame), Tracks(), {}
         self.cars: list = []
@@ -403,7 +413,7 @@ def _traffic_coverage(out: dict, prev: dict, others: list, accel: float, dt: flo
     out["traffic_car_steps"] += len(seen)
     for b0, b1 in seen:
         a = (b1.speed - b0.speed) / dt
-        progress = (b1.x - b0.x) - dt * b0.speed
+        progress = (b1.front - b0.front) - dt * b0.speed   # along the lane's chain (the ramp's too)
         braking_excess = -accel - a
         out["traffic_braking_excess"] = max(out["traffic_braking_excess"], braking_excess)
         out["traffic_progress_excess_m"] = max(out["traffic_progress_excess_m"], abs(progress))

@@ -38,23 +38,45 @@ def sumo_home() -> Path:
 
 @dataclass(frozen=True)
 class HighwayNet:
-    """A straight highway: ``lanes`` lanes of ``lane_width`` m over ``length`` m, speed limit ``speed`` m/s."""
+    """A straight highway: ``lanes`` lanes of ``lane_width`` m over ``length`` m, speed limit ``speed`` m/s; with
+    ``ramp_at`` > 0 an on-ramp joins there: a one-lane ramp of ``ramp_length`` m, ``ramp_offset`` m to the right of
+    the acceleration lane where it starts, leads into an acceleration lane of ``accel_lane`` m on the right that
+    ends (its cars must change lanes before its end)."""
 
     lanes: int = 3
     length: float = 3000.0
     lane_width: float = 3.5
     speed: float = 40.0
+    ramp_at: float = 0.0
+    accel_lane: float = 250.0
+    ramp_length: float = 250.0
+    ramp_offset: float = 20.0
+    ramp_speed: float = 30.0
 
     def __post_init__(self):
         if not 1 <= self.lanes <= 16:
             raise ConfigError(f"lanes must be 1..16, got {self.lanes}")
-        for name in ("length", "lane_width", "speed"):
+        for name in ("length", "lane_width", "speed", "accel_lane", "ramp_length", "ramp_speed"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.ramp_at and not (self.ramp_length + 10 <= self.ramp_at <= self.length - self.accel_lane - 200):
+            raise ConfigError(f"ramp_at must leave the ramp ({self.ramp_length:g} m) before it and the acceleration "
+                              f"lane and 200 m of road after it on a {self.length:g} m road, got {self.ramp_at:g}")
+        if self.ramp_offset < 0:
+            raise ConfigError(f"ramp_offset must be >= 0, got {self.ramp_offset}")
+
+    @property
+    def corridor(self) -> tuple:
+        """The edges along ``+x``, in order (every one's lanes aligned on the left)."""
+        return ("in", "acc", "out") if self.ramp_at else ("highway",)
+
+    @property
+    def ramp(self) -> str | None:
+        return "ramp" if self.ramp_at else None
 
     @property
     def edge(self) -> str:
-        return "highway"
+        return self.corridor[0]
 
     def key(self) -> str:
         return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:16]
@@ -81,12 +103,13 @@ class Traffic:
     speed_factor_dev: float = 0.1
     max_speed_lat: float = 1.0
     lateral_resolution: float = 0.8
+    ramp_vehicles_per_hour: float = 600.0   # on the on-ramp, when the road has one
 
     def __post_init__(self):
         if self.car_following not in CAR_FOLLOWING:
             raise ConfigError(f"car_following must be one of {', '.join(CAR_FOLLOWING)}, got {self.car_following!r}")
         for name in ("vehicles_per_hour", "accel", "decel", "emergency_decel", "tau", "length", "width",
-                     "max_speed", "max_speed_lat", "lateral_resolution"):
+                     "max_speed", "max_speed_lat", "lateral_resolution", "ramp_vehicles_per_hour"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.sigma <= 1:
@@ -100,13 +123,34 @@ class Traffic:
         return "SL2015" if self.sublane else "LC2013"
 
 
-def _net_files(net: HighwayNet, folder: Path) -> tuple[Path, Path]:
+def _net_files(net: HighwayNet, folder: Path) -> list:
+    """netconvert's inputs for ``net``: nodes and edges (and, with a ramp, the lanes' connections)."""
     nodes, edges = folder / "highway.nod.xml", folder / "highway.edg.xml"
-    nodes.write_text(f'<nodes>\n  <node id="start" x="0" y="0"/>\n  <node id="end" x="{net.length:g}" y="0"/>\n'
-                     "</nodes>\n")
-    edges.write_text(f'<edges>\n  <edge id="{net.edge}" from="start" to="end" numLanes="{net.lanes}" '
-                     f'speed="{net.speed:g}" width="{net.lane_width:g}"/>\n</edges>\n')
-    return nodes, edges
+    lane = f'speed="{net.speed:g}" width="{net.lane_width:g}"'
+    if not net.ramp_at:
+        nodes.write_text(f'<nodes>\n  <node id="start" x="0" y="0"/>\n  <node id="end" x="{net.length:g}" y="0"/>\n'
+                         "</nodes>\n")
+        edges.write_text(f'<edges>\n  <edge id="{net.edge}" from="start" to="end" numLanes="{net.lanes}" {lane}/>\n'
+                         "</edges>\n")
+        return ["--node-files", str(nodes), "--edge-files", str(edges)]
+    a, b, w, n = net.ramp_at, net.ramp_at + net.accel_lane, net.lane_width, net.lanes
+    y_acc = -(n + 0.5) * w   # the acceleration lane's centre line (SUMO's y; the road's left edge at y = 0)
+    nodes.write_text(f'<nodes>\n  <node id="start" x="0" y="0"/>\n  <node id="merge" x="{a:g}" y="0"/>\n'
+                     f'  <node id="drop" x="{b:g}" y="0"/>\n  <node id="end" x="{net.length:g}" y="0"/>\n'
+                     f'  <node id="ramp" x="{a - net.ramp_length:g}" y="{y_acc - net.ramp_offset:g}"/>\n</nodes>\n')
+    edges.write_text(
+        f'<edges>\n  <edge id="in" from="start" to="merge" numLanes="{n}" {lane}/>\n'
+        f'  <edge id="acc" from="merge" to="drop" numLanes="{n + 1}" {lane}/>\n'
+        f'  <edge id="out" from="drop" to="end" numLanes="{n}" {lane}/>\n'
+        f'  <edge id="ramp" from="ramp" to="merge" numLanes="1" speed="{net.ramp_speed:g}" width="{w:g}" '
+        f'spreadType="center" shape="{a - net.ramp_length:g},{y_acc - net.ramp_offset:g} {a:g},{y_acc:g}"/>\n</edges>\n')
+    links = [("in", "acc", k, k + 1) for k in range(n)] + [("ramp", "acc", 0, 0)] + \
+        [("acc", "out", k + 1, k) for k in range(n)]   # the acceleration lane (acc_0) leads nowhere: it ends
+    connections = folder / "highway.con.xml"
+    connections.write_text("<connections>\n" + "".join(
+        f'  <connection from="{f}" to="{t}" fromLane="{i}" toLane="{j}"/>\n' for f, t, i, j in links) + "</connections>\n")
+    return ["--node-files", str(nodes), "--edge-files", str(edges), "--connection-files", str(connections),
+            "--offset.disable-normalization", "true"]
 
 
 def build_network(net: HighwayNet, folder: Path) -> Path:
@@ -115,13 +159,12 @@ def build_network(net: HighwayNet, folder: Path) -> Path:
     out = folder / f"highway-{net.key()}.net.xml"
     if out.exists():
         return out
-    nodes, edges = _net_files(net, folder)
+    inputs = _net_files(net, folder)
     tmp = out.with_suffix(f".{os.getpid()}.tmp.xml")
-    done = subprocess.run([str(sumo_home() / "bin" / "netconvert"), "--node-files", str(nodes), "--edge-files",
-                           str(edges), "--no-turnarounds", "true", "-o", str(tmp)], capture_output=True, text=True,
-                          check=False)
+    done = subprocess.run([str(sumo_home() / "bin" / "netconvert"), *inputs, "--no-turnarounds", "true", "-o", str(tmp)],
+                          capture_output=True, text=True, check=False)
     if done.returncode != 0:
-        raise ConfigError(f"netconvert failed on {edges}: {done.stderr.strip()[-500:]}")
+        raise ConfigError(f"netconvert failed on {folder}: {done.stderr.strip()[-500:]}")
     tmp.replace(out)
     return out
 
@@ -134,16 +177,23 @@ def vtype_xml(type_id: str, t: Traffic) -> str:
             f'maxSpeed="{t.max_speed:g}" speedDev="{t.speed_factor_dev:g}" maxSpeedLat="{t.max_speed_lat:g}"/>')
 
 
-def write_routes(t: Traffic, ego_types: list, folder: Path, edge: str, seconds: float) -> Path:
-    """The routes file: SUMO's flow of ``t`` and the guarded vehicles' types (``(id, length, width, accel)``; their
-    speed factor is high so that SUMO takes any speed they are given, even on insertion)."""
+def write_routes(t: Traffic, ego_types: list, folder: Path, net: HighwayNet, seconds: float) -> Path:
+    """The routes file: SUMO's flows of ``t`` (the main road's; with a ramp, the ramp's too) and the guarded vehicles'
+    types (``(id, length, width, accel)``; their speed factor is high so that SUMO takes any speed they are given,
+    even on insertion). Route ``from_E`` runs from corridor edge ``E`` to the road's end (vehicles the guardian
+    moves are inserted on the edge where they start)."""
     egos = "\n".join(f'  <vType id="{tid}" length="{length:g}" width="{width:g}" accel="{accel:g}" decel="{accel:g}" '
                      f'emergencyDecel="{accel:g}" sigma="0" maxSpeed="100" speedFactor="{EXTERNAL_SPEED_FACTOR:g}" speedDev="0"/>'
                      for tid, length, width, accel in ego_types)
-    text = (f"<routes>\n  {vtype_xml('traffic', t)}\n{egos}\n  <route id=\"main\" edges=\"{edge}\"/>\n"
-            f'  <flow id="traffic" type="traffic" route="main" begin="0" end="{seconds:g}" '
-            f'vehsPerHour="{t.vehicles_per_hour:g}" departLane="random" departSpeed="desired" departPos="base"/>\n'
-            "</routes>\n")
+    corridor = net.corridor
+    routes = "".join(f'  <route id="from_{e}" edges="{" ".join(corridor[k:])}"/>\n' for k, e in enumerate(corridor))
+    flows = (f'  <flow id="traffic" type="traffic" route="from_{corridor[0]}" begin="0" end="{seconds:g}" '
+             f'vehsPerHour="{t.vehicles_per_hour:g}" departLane="random" departSpeed="desired" departPos="base"/>\n')
+    if net.ramp:
+        routes += f'  <route id="from_ramp" edges="ramp {" ".join(corridor[1:])}"/>\n'
+        flows += (f'  <flow id="ramp" type="traffic" route="from_ramp" begin="0" end="{seconds:g}" '
+                  f'vehsPerHour="{t.ramp_vehicles_per_hour:g}" departLane="0" departSpeed="desired" departPos="base"/>\n')
+    text = f"<routes>\n  {vtype_xml('traffic', t)}\n{egos}\n{routes}{flows}</routes>\n"
     out = folder / "routes.rou.xml"
     out.write_text(text)
     return out

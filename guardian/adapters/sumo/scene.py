@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from guardian.model.roads import road_from_dict
+from guardian.model.roads import RoadMap, road_from_dict
 from guardian.model.scene import Car, EgoState
 from guardian.model.sensing import Sensed, scene_of
 
@@ -28,43 +28,107 @@ KEEP_ROUTE = 2  # map by position (placement exact), on the lane of the centre
 
 
 class Frame:
-    """SUMO's coordinates and lane indices against the road model's (one straight edge)."""
+    """SUMO's coordinates and lanes against the road model's.
 
-    def __init__(self, traci, edge: str):
-        n = traci.edge.getLaneNumber(edge)
-        shapes = [traci.lane.getShape(f"{edge}_{k}") for k in range(n)]
-        (x0, y0), (x1, y1) = shapes[0][0], shapes[0][-1]
-        if abs(y1 - y0) > 1e-6 or x1 <= x0:
-            raise ValueError(f"edge {edge!r} is not straight along +x: {shapes[0]}")
-        widths = {round(traci.lane.getWidth(f"{edge}_{k}"), 6) for k in range(n)}
+    The corridor is a chain of straight edges along ``+x`` whose lanes are aligned on the left (a lane added on the
+    right, as an acceleration lane is): the road model's slots, the main lanes everywhere and the added ones where
+    their edge is (a slot whose edge ends before the road does is a dead end). An on-ramp edge (``ramp``) is a
+    straight branch leading into the slot its lane joins (``guardian.model.roads``)."""
+
+    def __init__(self, traci, corridor, ramp: str | None = None):
+        corridor = (corridor,) if isinstance(corridor, str) else tuple(corridor)
+        shapes = {e: [traci.lane.getShape(f"{e}_{k}") for k in range(traci.edge.getLaneNumber(e))] for e in corridor}
+        widths = {round(traci.lane.getWidth(f"{e}_{k}"), 6) for e in corridor for k in range(len(shapes[e]))}
         if len(widths) != 1:
-            raise ValueError(f"edge {edge!r} has lanes of different widths {sorted(widths)}")
-        self.n_lanes, self.lane_width = n, widths.pop()
-        self.x0, self.y_left = x0, shapes[n - 1][0][1]     # the leftmost lane's centre line: y = 0
-        self.length = x1 - x0
-        self.edge = edge
-        self.road = road_from_dict({"lanes": n, "lane_width": self.lane_width})
+            raise ValueError(f"the corridor {corridor} has lanes of different widths {sorted(widths)}")
+        for e, lanes in shapes.items():
+            (x0, y0), (x1, y1) = lanes[0][0], lanes[0][-1]
+            if abs(y1 - y0) > 1e-6 or x1 <= x0:
+                raise ValueError(f"edge {e!r} is not straight along +x: {lanes[0]}")
+        lefts = {round(lanes[-1][0][1], 3) for lanes in shapes.values()}
+        if len(lefts) != 1:
+            raise ValueError(f"the corridor's edges {corridor} are not aligned on their left lanes: {sorted(lefts)}")
+        self.lane_width, self.edges, self.edge = widths.pop(), corridor, corridor[0]
+        self.x0, self.y_left = shapes[corridor[0]][0][0][0], shapes[corridor[0]][-1][0][1]   # slot 0's centre: y = 0
+        self.lanes_of = {e: len(lanes) for e, lanes in shapes.items()}
+        self.extent = {e: (lanes[0][0][0] - self.x0, lanes[0][-1][0] - self.x0) for e, lanes in shapes.items()}
+        self.n_lanes = max(self.lanes_of.values())
+        self.length = max(hi for _, hi in self.extent.values())
+        self.road = self._road(traci, ramp)
+
+    def _road(self, traci, ramp):
+        main = min(self.lanes_of.values())
+        if main == self.n_lanes and ramp is None:
+            return road_from_dict({"lanes": self.n_lanes, "lane_width": self.lane_width})
+        spans, ends = [[[None, None]] for _ in range(main)], []
+        for slot in range(main, self.n_lanes):
+            pieces = sorted(self.extent[e] for e in self.edges if self.lanes_of[e] > slot)
+            spans.append([list(piece) for piece in pieces])
+            ends += [[slot, hi] for _, hi in pieces if hi < self.length - 1e-6]
+        spec = {"lanes": self.n_lanes, "lane_width": self.lane_width, "spans": spans, "ends": ends}
+        if ramp is not None:
+            spec["branches"] = [self._ramp(traci, ramp, spans)]
+        return road_from_dict(spec)
+
+    def _ramp(self, traci, ramp: str, spans) -> dict:
+        """The ramp as a straight branch from its start to where its lane's slot begins on the corridor."""
+        (xs, ys) = traci.lane.getShape(f"{ramp}_0")[0]
+        joins = [lane for lane, *_ in traci.lane.getLinks(f"{ramp}_0")]
+        edge, index = joins[0].rsplit("_", 1)
+        slot = self.lanes_of[edge] - 1 - int(index)
+        start = (xs - self.x0, self.y_left - ys)
+        end = (spans[slot][0][0], slot * self.lane_width)
+        length = math.dist(start, end)
+        return {"kind": "straight", "start": list(start), "end": list(end), "width": self.lane_width,
+                "length": length, "slot": slot, "s0": end[0] - length, "open_before": True}
 
     def centre_y(self, slot: int) -> float:
         """The centre line of lane ``slot`` in the model's frame."""
         return slot * self.lane_width
 
-    def slot(self, sumo_lane: int) -> int:
-        return self.n_lanes - 1 - sumo_lane
+    def edge_at(self, x: float) -> str:
+        """The corridor edge at ``x`` (the model's frame; the nearest one in a junction between two)."""
+        return min(self.edges, key=lambda e: max(self.extent[e][0] - x, x - self.extent[e][1], 0.0))
 
-    def sumo_lane(self, slot: int) -> int:
-        return self.n_lanes - 1 - slot
+    def lane_at(self, slot: int, x: float) -> tuple[str, int]:
+        """SUMO's ``(edge, lane index)`` of slot ``slot`` at ``x``: on the nearest corridor edge that has it."""
+        edges = [e for e in self.edges if self.lanes_of[e] > slot] or list(self.edges)
+        edge = min(edges, key=lambda e: max(self.extent[e][0] - x, x - self.extent[e][1], 0.0))
+        return edge, max(self.lanes_of[edge] - 1 - slot, 0)
+
+    def slot(self, sumo_lane: int, edge: str | None = None) -> int:
+        return self.lanes_of[edge or self.edge] - 1 - sumo_lane
+
+    def sumo_lane(self, slot: int, edge: str | None = None) -> int:
+        return self.lanes_of[edge or self.edge] - 1 - slot
+
+    def slot_of(self, traci, vid: str) -> int:
+        """The slot SUMO has vehicle ``vid`` on (off the corridor's edges: the slot of its position)."""
+        edge = traci.vehicle.getRoadID(vid)
+        if edge in self.lanes_of:
+            return self.slot(traci.vehicle.getLaneIndex(vid), edge)
+        xs, ys = traci.vehicle.getPosition(vid)
+        return self.road.nearest_slot(xs - self.x0, self.y_left - ys)
 
     def body(self, traci, vid: str) -> Sensed:
-        """Vehicle ``vid`` as read from SUMO, in the road model's frame (its own lane: its centre's)."""
+        """Vehicle ``vid`` as read from SUMO, in the road model's frame (its own lane: its centre's; its front along
+        its lane's chain: ``x + length / 2`` on the corridor, the branch's coordinate on the ramp)."""
         xs, ys = traci.vehicle.getPosition(vid)
         heading = math.radians(traci.vehicle.getAngle(vid) - 90.0)
         length = traci.vehicle.getLength(vid)
         fx, fy = xs - self.x0, self.y_left - ys          # the front bumper, in the model's frame
         x, y = fx - length / 2 * math.cos(heading), fy - length / 2 * math.sin(heading)
         speed = traci.vehicle.getSpeed(vid)
-        return Sensed(vid, x, y, heading, speed, length, traci.vehicle.getWidth(vid), x + length / 2,
+        return Sensed(vid, x, y, heading, speed, length, traci.vehicle.getWidth(vid), self.along(x, y) + length / 2,
                       self.road.nearest_slot(x, y), swings=speed < 0)
+
+    def along(self, x: float, y: float) -> float:
+        """The longitudinal coordinate of ``(x, y)`` along its lane's chain."""
+        strip = self.road.on_branch(x, y) if isinstance(self.road, RoadMap) else None
+        if strip is None:
+            return x
+        s, _ = strip.local(x, y)
+        return float(strip.s0 + s)
 
     def to_sumo(self, x: float, y: float, heading: float, length: float) -> tuple[float, float, float]:
         """SUMO's front-bumper position and angle of a body centred at ``(x, y)`` with ``heading``."""
@@ -77,8 +141,10 @@ def ego_state(b: Sensed) -> EgoState:
 
 
 def scene(frame: Frame, ego: Sensed, others: list, reverse_reach: float, margin: float):
+    """The scene of guarded vehicle ``ego`` among ``others``; on a road with a dead end, the end as a standing car."""
     me = Car(ego.front, ego.speed, frozenset(), ego.length, "ego")
-    return scene_of(frame.road, me, others, reverse_reach, margin)
+    ends = frame.road.end_cars() if isinstance(frame.road, RoadMap) else ()
+    return scene_of(frame.road, me, others, reverse_reach, margin, ends)
 
 
 @dataclass
@@ -105,7 +171,8 @@ def place(traci, frame: Frame, vid: str, x: float, y: float, heading: float, spe
     slot = frame.road.nearest_slot(x, y)
     length = traci.vehicle.getLength(vid)
     xs, ys, angle = frame.to_sumo(x, y, heading, length)
-    traci.vehicle.moveToXY(vid, frame.edge, frame.sumo_lane(slot), xs, ys, angle, keepRoute=KEEP_ROUTE)
+    edge, lane = frame.lane_at(slot, x)
+    traci.vehicle.moveToXY(vid, edge, lane, xs, ys, angle, keepRoute=KEEP_ROUTE)
     traci.vehicle.setSpeed(vid, max(speed, 0.0))
     return slot
 

@@ -54,18 +54,18 @@ class Shadows:
         along = max(speed * math.cos(heading), 0.0)
         for slot in sorted(wanted):
             sid = mine.get(slot)
-            lane = self.frame.sumo_lane(slot)
+            edge, lane = self.frame.lane_at(slot, front - length / 2)
             xs, ys, angle = self.frame.to_sumo(front - length / 2, self.frame.centre_y(slot), 0.0, length)
             if sid is None:
                 sid = mine[slot] = shadow_id(vid, slot)
                 # SUMO refuses to insert a vehicle above the lane's limit: a faster body's shadow is slower for its
                 # first step (its followers brake more, not less)
-                limit = traci.lane.getMaxSpeed(f"{self.frame.edge}_{lane}")
-                traci.vehicle.add(sid, "main", typeID=SHADOW_TYPE, departLane=str(lane), departPos="0",
+                limit = traci.lane.getMaxSpeed(f"{edge}_{lane}")
+                traci.vehicle.add(sid, f"from_{edge}", typeID=SHADOW_TYPE, departLane=str(lane), departPos="0",
                                   departSpeed=f"{min(along, limit):.6f}")
                 traci.vehicle.setSpeedMode(sid, 0)
                 traci.vehicle.setLaneChangeMode(sid, 0)
-            traci.vehicle.moveToXY(sid, self.frame.edge, lane, xs, ys, angle, keepRoute=2)
+            traci.vehicle.moveToXY(sid, edge, lane, xs, ys, angle, keepRoute=2)
             traci.vehicle.setSpeed(sid, along)
 
     def drop(self, traci, vid: str) -> None:
@@ -79,4 +79,4 @@ class Shadows:
         """The slots where SUMO has ``vid`` or one of its shadows now (its drivers see the body there)."""
         present = set(traci.vehicle.getIDList())
         ids = [vid, *self.live.get(vid, {}).values()]
-        return {self.frame.slot(traci.vehicle.getLaneIndex(v)) for v in ids if v in present}
+        return {self.frame.slot_of(traci, v) for v in ids if v in present}

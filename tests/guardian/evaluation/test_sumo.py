@@ -1,8 +1,10 @@
 """Guarded episodes in Eclipse SUMO: the counting rules on hand-built cases, the frame, and real SUMO runs."""
 import math
+from dataclasses import replace
 
 import pytest
 
+from guardian.adapters.sumo.network import HighwayNet
 from guardian.adapters.sumo.scene import BicycleModel, Frame, overlap
 from guardian.evaluation.sumo import SumoSetting, run_episode, summary
 from guardian.evaluation.sumo_judge import ENTRY_WINDOW, Tracks, at_fault
@@ -109,6 +111,7 @@ def test_overlap_of_rotated_bodies():
 def test_the_frame_maps_sumo_to_the_road_model_and_back():
     frame = Frame.__new__(Frame)
     frame.n_lanes, frame.lane_width, frame.x0, frame.y_left, frame.edge = 3, 3.5, 0.0, -1.75, "highway"
+    frame.lanes_of = {"highway": 3}
     frame.road = road_from_dict({"lanes": 3, "lane_width": 3.5})
     xs, ys, angle = frame.to_sumo(100.0, 3.5, 0.1, 5.0)   # slot 1's centre, turning right by 0.1 rad
     assert angle == pytest.approx(90 + math.degrees(0.1))
@@ -208,9 +211,9 @@ def _crawler_and_follower(shadows: bool, seconds: float = 12.0):
         traci = open_sumo("libsumo", sumo_args(setting, Path(tmp), seed=0))
         try:
             frame, shade = Frame(traci, setting.net.edge), None
-            traci.vehicle.add("guarded", "main", typeID="guarded", departLane=str(frame.sumo_lane(1)), departPos="600",
+            traci.vehicle.add("guarded", "from_highway", typeID="guarded", departLane=str(frame.sumo_lane(1)), departPos="600",
                               departSpeed="3")
-            traci.vehicle.add("car", "main", typeID="traffic", departLane=str(frame.sumo_lane(0)), departPos="400",
+            traci.vehicle.add("car", "from_highway", typeID="traffic", departLane=str(frame.sumo_lane(0)), departPos="400",
                               departSpeed="25")
             traci.simulationStep()
             traci.vehicle.setLaneChangeMode("car", 0)   # it keeps its lane: it must brake
@@ -331,3 +334,39 @@ def test_a_rerun_recording_shows_every_body_and_every_safety_override(tmp_path):
     overrides = read_texts(path, "/events/override")
     assert len(overrides) == r["safety_overrides"] > 0 and all(t.startswith("t=") for t in overrides)
     assert read_texts(path, "/events/episode") == ["random seed 1 starts"]
+
+
+# ---- an on-ramp merge ----------------------------------------------------------------------------------------
+MERGE = SumoSetting(seconds=20.0, warmup=30.0, net=HighwayNet(ramp_at=1000.0))
+
+
+def test_an_on_ramp_is_read_as_a_road_map_with_its_branch_and_its_dead_end(tmp_path):
+    from guardian.adapters.sumo.connection import open_sumo
+    from guardian.evaluation.sumo import sumo_args
+    from guardian.model.roads import RoadMap
+
+    traci = open_sumo("libsumo", sumo_args(MERGE, tmp_path, seed=0))
+    try:
+        frame = Frame(traci, MERGE.net.corridor, MERGE.net.ramp)
+        road = frame.road
+        assert isinstance(road, RoadMap) and road.n_lanes == 4 and frame.lanes_of == {"in": 3, "acc": 4, "out": 3}
+        (lo, hi), = road.spans[3]
+        assert lo == pytest.approx(1000.0, abs=3) and hi == pytest.approx(1250.0, abs=5) and road.ends == ((3, hi),)
+        (ramp,) = road.branches
+        assert ramp.slot == 3 and ramp.s0 + ramp.length == pytest.approx(lo)   # the ramp's chain runs on into slot 3
+        assert road.slot_at(3, 1100.0) and not road.slot_at(3, 1300.0) and road.slot_at(2, 1300.0)
+        assert frame.lane_at(3, 1100.0) == ("acc", 0) and frame.lane_at(0, 500.0) == ("in", 2)
+        assert frame.lane_at(0, 1100.0) == ("acc", 3) and frame.lane_at(2, 2000.0) == ("out", 0)
+        # a car on the ramp is in slot 3's lane, its front along the ramp's chain
+        x, y = ramp.position(100.0)
+        assert road.nearest_slot(x, y) == 3 and frame.along(x, y) == pytest.approx(ramp.s0 + 100.0)
+    finally:
+        traci.close()
+
+
+def test_on_a_merge_road_guarded_vehicles_cause_no_collision_and_sumo_sees_them():
+    for agent, guarded in (("seek", 1), ("random", 1), ("random", 6)):
+        rows = [run_episode(replace(MERGE, guarded=guarded), agent, seed) for seed in range(3)]
+        total = summary(rows)
+        assert total["steps"] > 0 and total["at_fault"] == 0 and total["guarded_lost"] == 0, (agent, total)
+        assert total["ego_uncovered"] == 0, total
