@@ -110,8 +110,8 @@ def _cells(args) -> list:
     from guardian.evaluation.sumo import SumoSetting
 
     def setting(traffic: str, sublane: bool):
-        ramp_at = args.length / 3 if args.road == "merge" else 0.0
-        return SumoSetting(net=HighwayNet(lanes=args.lanes, length=args.length, ramp_at=ramp_at), seconds=args.seconds,
+        at = {"straight": {}, "merge": {"ramp_at": args.length / 3}, "exit": {"exit_at": args.length / 3}}[args.road]
+        return SumoSetting(net=HighwayNet(lanes=args.lanes, length=args.length, **at), seconds=args.seconds,
                            warmup=args.warmup, guarded=args.guarded, connection=args.connection,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))
@@ -146,7 +146,8 @@ def _row(cell, results: list) -> dict:
     total = summary([r for _, r in results])
     steps = total["traffic_car_steps"]
     crashes = [{"seed": seed, **crash} for seed, r in results for crash in r["crashes"]]
-    return {"road": "merge" if setting.net.ramp else "straight", "guarded": setting.guarded,
+    road = "merge" if setting.net.ramp else ("exit" if setting.net.exit else "straight")
+    return {"road": road, "guarded": setting.guarded,
             "traffic": setting.traffic.car_following, "lane_change": setting.traffic.lane_change, "agent": agent,
             "guardian": guarded, **total, "per_hour": total["collisions"] / total["hours"] if total["hours"] else 0.0,
             "traffic_uncovered_share": total["traffic_uncovered"] / steps if steps else 0.0, "crashes": crashes}
@@ -216,9 +217,10 @@ def add_commands(sub) -> None:
     p.add_argument("--campaign", action="store_true",
                    help="every traffic model x lane-change model x agent, guarded and unguarded, in one table")
     p.add_argument("--lanes", type=count(1), default=3, help="lanes of the straight highway (3)")
-    p.add_argument("--road", choices=("straight", "merge"), default="straight",
-                   help="a straight highway, or one an on-ramp joins at a third of its length through a 250 m "
-                        "acceleration lane that ends (straight)")
+    p.add_argument("--road", choices=("straight", "merge", "exit"), default="straight",
+                   help="a straight highway; one an on-ramp joins at a third of its length through a 250 m "
+                        "acceleration lane that ends (merge); one an exit leaves at a third of its length after a "
+                        "250 m deceleration lane (exit) (straight)")
     p.add_argument("--length", type=positive_number, default=3000.0, help="the highway's length [m] (3000)")
     p.add_argument("--guarded", type=count(1), default=1,
                    help="guarded vehicles, each with its own guardian and driver, all others traffic to it (1)")

@@ -202,7 +202,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
     dt = setting.step_length
     for _ in range(round(setting.warmup / dt)):
         traci.simulationStep()
-    frame = Frame(traci, setting.net.corridor, setting.net.ramp)
+    frame = Frame(traci, setting.net.corridor, setting.net.ramp, setting.net.exit)
     accel = traffic_accel_of(traci)
     config = replace(config or GuardianConfig(), traffic_accel=accel)
     out = {"steps": 0, "vehicle_steps": 0, "collisions": 0, "sumo_collisions": 0, "shadow_collisions": 0,

@@ -41,7 +41,9 @@ class HighwayNet:
     """A straight highway: ``lanes`` lanes of ``lane_width`` m over ``length`` m, speed limit ``speed`` m/s; with
     ``ramp_at`` > 0 an on-ramp joins there: a one-lane ramp of ``ramp_length`` m, ``ramp_offset`` m to the right of
     the acceleration lane where it starts, leads into an acceleration lane of ``accel_lane`` m on the right that
-    ends (its cars must change lanes before its end)."""
+    ends (its cars must change lanes before its end); with ``exit_at`` > 0 (instead) a deceleration lane of
+    ``accel_lane`` m begins there on the right and leaves the road as a one-lane exit of ``ramp_length`` m, bending
+    ``ramp_offset`` m away to the right."""
 
     lanes: int = 3
     length: float = 3000.0
@@ -52,6 +54,7 @@ class HighwayNet:
     ramp_length: float = 250.0
     ramp_offset: float = 20.0
     ramp_speed: float = 30.0
+    exit_at: float = 0.0
 
     def __post_init__(self):
         if not 1 <= self.lanes <= 16:
@@ -62,17 +65,28 @@ class HighwayNet:
         if self.ramp_at and not (self.ramp_length + 10 <= self.ramp_at <= self.length - self.accel_lane - 200):
             raise ConfigError(f"ramp_at must leave the ramp ({self.ramp_length:g} m) before it and the acceleration "
                               f"lane and 200 m of road after it on a {self.length:g} m road, got {self.ramp_at:g}")
+        if self.exit_at and self.ramp_at:
+            raise ConfigError("a road has an on-ramp (ramp_at) or an exit (exit_at), not both")
+        if self.exit_at and not (200 <= self.exit_at <= self.length - self.accel_lane - 200):
+            raise ConfigError(f"exit_at must leave 200 m of road before it and after its deceleration lane on a "
+                              f"{self.length:g} m road, got {self.exit_at:g}")
         if self.ramp_offset < 0:
             raise ConfigError(f"ramp_offset must be >= 0, got {self.ramp_offset}")
 
     @property
     def corridor(self) -> tuple:
         """The edges along ``+x``, in order (every one's lanes aligned on the left)."""
-        return ("in", "acc", "out") if self.ramp_at else ("highway",)
+        if self.ramp_at:
+            return ("in", "acc", "out")
+        return ("in", "dec", "out") if self.exit_at else ("highway",)
 
     @property
     def ramp(self) -> str | None:
         return "ramp" if self.ramp_at else None
+
+    @property
+    def exit(self) -> str | None:
+        return "exit" if self.exit_at else None
 
     @property
     def edge(self) -> str:
@@ -127,25 +141,32 @@ def _net_files(net: HighwayNet, folder: Path) -> list:
     """netconvert's inputs for ``net``: nodes and edges (and, with a ramp, the lanes' connections)."""
     nodes, edges = folder / "highway.nod.xml", folder / "highway.edg.xml"
     lane = f'speed="{net.speed:g}" width="{net.lane_width:g}"'
-    if not net.ramp_at:
+    if not net.ramp_at and not net.exit_at:
         nodes.write_text(f'<nodes>\n  <node id="start" x="0" y="0"/>\n  <node id="end" x="{net.length:g}" y="0"/>\n'
                          "</nodes>\n")
         edges.write_text(f'<edges>\n  <edge id="{net.edge}" from="start" to="end" numLanes="{net.lanes}" {lane}/>\n'
                          "</edges>\n")
         return ["--node-files", str(nodes), "--edge-files", str(edges)]
-    a, b, w, n = net.ramp_at, net.ramp_at + net.accel_lane, net.lane_width, net.lanes
-    y_acc = -(n + 0.5) * w   # the acceleration lane's centre line (SUMO's y; the road's left edge at y = 0)
+    a = net.ramp_at or net.exit_at
+    b, w, n = a + net.accel_lane, net.lane_width, net.lanes
+    y_added = -(n + 0.5) * w   # the added lane's centre line (SUMO's y; the road's left edge at y = 0)
+    mid = "acc" if net.ramp_at else "dec"
+    side = (a - net.ramp_length if net.ramp_at else b + net.ramp_length, y_added - net.ramp_offset)  # the far end
     nodes.write_text(f'<nodes>\n  <node id="start" x="0" y="0"/>\n  <node id="merge" x="{a:g}" y="0"/>\n'
                      f'  <node id="drop" x="{b:g}" y="0"/>\n  <node id="end" x="{net.length:g}" y="0"/>\n'
-                     f'  <node id="ramp" x="{a - net.ramp_length:g}" y="{y_acc - net.ramp_offset:g}"/>\n</nodes>\n')
+                     f'  <node id="side" x="{side[0]:g}" y="{side[1]:g}"/>\n</nodes>\n')
+    ramp = (f'  <edge id="ramp" from="side" to="merge" numLanes="1" speed="{net.ramp_speed:g}" width="{w:g}" '
+            f'spreadType="center" shape="{side[0]:g},{side[1]:g} {a:g},{y_added:g}"/>\n') if net.ramp_at else \
+           (f'  <edge id="exit" from="drop" to="side" numLanes="1" speed="{net.ramp_speed:g}" width="{w:g}" '
+            f'spreadType="center" shape="{b:g},{y_added:g} {side[0]:g},{side[1]:g}"/>\n')
     edges.write_text(
         f'<edges>\n  <edge id="in" from="start" to="merge" numLanes="{n}" {lane}/>\n'
-        f'  <edge id="acc" from="merge" to="drop" numLanes="{n + 1}" {lane}/>\n'
-        f'  <edge id="out" from="drop" to="end" numLanes="{n}" {lane}/>\n'
-        f'  <edge id="ramp" from="ramp" to="merge" numLanes="1" speed="{net.ramp_speed:g}" width="{w:g}" '
-        f'spreadType="center" shape="{a - net.ramp_length:g},{y_acc - net.ramp_offset:g} {a:g},{y_acc:g}"/>\n</edges>\n')
-    links = [("in", "acc", k, k + 1) for k in range(n)] + [("ramp", "acc", 0, 0)] + \
-        [("acc", "out", k + 1, k) for k in range(n)]   # the acceleration lane (acc_0) leads nowhere: it ends
+        f'  <edge id="{mid}" from="merge" to="drop" numLanes="{n + 1}" {lane}/>\n'
+        f'  <edge id="out" from="drop" to="end" numLanes="{n}" {lane}/>\n{ramp}</edges>\n')
+    links = [("in", mid, k, k + 1) for k in range(n)] + [(mid, "out", k + 1, k) for k in range(n)]
+    # an on-ramp leads into the acceleration lane, which leads nowhere (it ends); the deceleration lane is entered
+    # by changing lanes and leads only into the exit
+    links += [("ramp", mid, 0, 0)] if net.ramp_at else [(mid, "exit", 0, 0)]
     connections = folder / "highway.con.xml"
     connections.write_text("<connections>\n" + "".join(
         f'  <connection from="{f}" to="{t}" fromLane="{i}" toLane="{j}"/>\n' for f, t, i, j in links) + "</connections>\n")
@@ -193,6 +214,11 @@ def write_routes(t: Traffic, ego_types: list, folder: Path, net: HighwayNet, sec
         routes += f'  <route id="from_ramp" edges="ramp {" ".join(corridor[1:])}"/>\n'
         flows += (f'  <flow id="ramp" type="traffic" route="from_ramp" begin="0" end="{seconds:g}" '
                   f'vehsPerHour="{t.ramp_vehicles_per_hour:g}" departLane="0" departSpeed="desired" departPos="base"/>\n')
+    if net.exit:   # cars that leave by the exit (as many per hour as an on-ramp brings)
+        routes += f'  <route id="to_exit" edges="{corridor[0]} {corridor[1]} exit"/>\n'
+        flows += (f'  <flow id="exiting" type="traffic" route="to_exit" begin="0" end="{seconds:g}" '
+                  f'vehsPerHour="{t.ramp_vehicles_per_hour:g}" departLane="random" departSpeed="desired" '
+                  'departPos="base"/>\n')
     text = f"<routes>\n  {vtype_xml('traffic', t)}\n{egos}\n{routes}{flows}</routes>\n"
     out = folder / "routes.rou.xml"
     out.write_text(text)

@@ -35,7 +35,7 @@ class Frame:
     their edge is (a slot whose edge ends before the road does is a dead end). An on-ramp edge (``ramp``) is a
     straight branch leading into the slot its lane joins (``guardian.model.roads``)."""
 
-    def __init__(self, traci, corridor, ramp: str | None = None):
+    def __init__(self, traci, corridor, ramp: str | None = None, exit: str | None = None):
         corridor = (corridor,) if isinstance(corridor, str) else tuple(corridor)
         shapes = {e: [traci.lane.getShape(f"{e}_{k}") for k in range(traci.edge.getLaneNumber(e))] for e in corridor}
         widths = {round(traci.lane.getWidth(f"{e}_{k}"), 6) for e in corridor for k in range(len(shapes[e]))}
@@ -54,21 +54,38 @@ class Frame:
         self.extent = {e: (lanes[0][0][0] - self.x0, lanes[0][-1][0] - self.x0) for e, lanes in shapes.items()}
         self.n_lanes = max(self.lanes_of.values())
         self.length = max(hi for _, hi in self.extent.values())
-        self.road = self._road(traci, ramp)
+        self.road = self._road(traci, ramp, exit)
 
-    def _road(self, traci, ramp):
+    def _road(self, traci, ramp, exit):
         main = min(self.lanes_of.values())
-        if main == self.n_lanes and ramp is None:
+        if main == self.n_lanes and ramp is None and exit is None:
             return road_from_dict({"lanes": self.n_lanes, "lane_width": self.lane_width})
         spans, ends = [[[None, None]] for _ in range(main)], []
         for slot in range(main, self.n_lanes):
             pieces = sorted(self.extent[e] for e in self.edges if self.lanes_of[e] > slot)
             spans.append([list(piece) for piece in pieces])
             ends += [[slot, hi] for _, hi in pieces if hi < self.length - 1e-6]
+        branches = [self._ramp(traci, ramp, spans)] if ramp is not None else []
+        if exit is not None:
+            branches.append(self._exit(traci, exit))
+            ends = [e for e in ends if not (e[0] == branches[-1]["slot"] and abs(e[1] - branches[-1]["s0"]) < 1e-6)]
         spec = {"lanes": self.n_lanes, "lane_width": self.lane_width, "spans": spans, "ends": ends}
-        if ramp is not None:
-            spec["branches"] = [self._ramp(traci, ramp, spans)]
+        if branches:
+            spec["branches"] = branches
         return road_from_dict(spec)
+
+    def _exit(self, traci, exit: str) -> dict:
+        """The exit as a straight branch from the end of the lane that leads into it to the exit's end (open: the
+        road goes on past it); no dead end there."""
+        feeders = [lane for lane in traci.lane.getIDList() if not lane.startswith(":")
+                   and any(link[0] == f"{exit}_0" for link in traci.lane.getLinks(lane))]
+        edge, index = feeders[0].rsplit("_", 1)
+        slot = self.lanes_of[edge] - 1 - int(index)
+        start = (self.extent[edge][1], slot * self.lane_width)
+        (xe, ye) = traci.lane.getShape(f"{exit}_0")[-1]
+        end = (xe - self.x0, self.y_left - ye)
+        return {"kind": "straight", "start": list(start), "end": list(end), "width": self.lane_width,
+                "length": math.dist(start, end), "slot": slot, "s0": start[0], "open_after": True}
 
     def _ramp(self, traci, ramp: str, spans) -> dict:
         """The ramp as a straight branch from its start to where its lane's slot begins on the corridor."""

@@ -338,6 +338,7 @@ def test_a_rerun_recording_shows_every_body_and_every_safety_override(tmp_path):
 
 # ---- an on-ramp merge ----------------------------------------------------------------------------------------
 MERGE = SumoSetting(seconds=20.0, warmup=30.0, net=HighwayNet(ramp_at=1000.0))
+EXIT = SumoSetting(seconds=20.0, warmup=30.0, net=HighwayNet(exit_at=1000.0))
 
 
 def test_an_on_ramp_is_read_as_a_road_map_with_its_branch_and_its_dead_end(tmp_path):
@@ -364,9 +365,36 @@ def test_an_on_ramp_is_read_as_a_road_map_with_its_branch_and_its_dead_end(tmp_p
         traci.close()
 
 
-def test_on_a_merge_road_guarded_vehicles_cause_no_collision_and_sumo_sees_them():
+def test_an_exit_is_a_branch_leaving_the_deceleration_lane_which_is_no_dead_end(tmp_path):
+    from guardian.adapters.sumo.connection import open_sumo
+    from guardian.evaluation.sumo import sumo_args
+
+    traci = open_sumo("libsumo", sumo_args(EXIT, tmp_path, seed=0))
+    try:
+        road = Frame(traci, EXIT.net.corridor, EXIT.net.ramp, EXIT.net.exit).road
+        (lo, hi), = road.spans[3]
+        (exit_,) = road.branches
+        assert road.ends == () and exit_.slot == 3 and exit_.s0 == pytest.approx(hi) and exit_.open_after
+        x, y = exit_.position(50.0)
+        assert road.nearest_slot(x, y) == 3 and not road.slot_at(3, x)
+    finally:
+        traci.close()
+
+
+@pytest.mark.parametrize("setting", ["merge", "exit"])
+def test_on_a_merge_or_exit_road_guarded_vehicles_cause_no_collision(setting):
     for agent, guarded in (("seek", 1), ("random", 1), ("random", 6)):
-        rows = [run_episode(replace(MERGE, guarded=guarded), agent, seed) for seed in range(3)]
+        rows = [run_episode(replace(MERGE if setting == "merge" else EXIT, guarded=guarded), agent, seed)
+                for seed in range(3)]
         total = summary(rows)
         assert total["steps"] > 0 and total["at_fault"] == 0 and total["guarded_lost"] == 0, (agent, total)
         assert total["ego_uncovered"] == 0, total
+
+
+def test_roads_that_cannot_be_built_are_refused_by_name():
+    from guardian.errors import ConfigError
+
+    for bad, match in (({"ramp_at": 1000.0, "exit_at": 1500.0}, "not both"), ({"ramp_at": 100.0}, "ramp_at must"),
+                       ({"exit_at": 2900.0}, "exit_at must"), ({"ramp_offset": -1.0}, "ramp_offset")):
+        with pytest.raises(ConfigError, match=match):
+            HighwayNet(**bad)
