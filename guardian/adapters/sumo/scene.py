@@ -99,6 +99,10 @@ class Frame:
         return {"kind": "straight", "start": list(start), "end": list(end), "width": self.lane_width,
                 "length": length, "slot": slot, "s0": end[0] - length, "open_before": True}
 
+    def on_corridor(self, slot: int, x: float) -> bool:
+        """Is slot ``slot`` a corridor lane at ``x`` (not only a ramp's or an exit's branch)?"""
+        return self.road.slot_at(slot, x) if isinstance(self.road, RoadMap) else 0 <= slot < self.n_lanes
+
     def centre_y(self, slot: int) -> float:
         """The centre line of lane ``slot`` in the model's frame."""
         return slot * self.lane_width
@@ -119,11 +123,16 @@ class Frame:
     def sumo_lane(self, slot: int, edge: str | None = None) -> int:
         return self.lanes_of[edge or self.edge] - 1 - slot
 
-    def slot_of(self, traci, vid: str) -> int:
-        """The slot SUMO has vehicle ``vid`` on (off the corridor's edges: the slot of its position)."""
-        edge = traci.vehicle.getRoadID(vid)
+    def slot_of(self, traci, vid: str) -> int | None:
+        """The slot SUMO has vehicle ``vid`` on (on a junction or the ramp: the slot of its position); None when SUMO
+        has it on no lane (moved off the road: no driver sees it). Only the lane's id is asked: libsumo crashes on
+        ``getRoadID`` of a vehicle on no lane."""
+        lane = traci.vehicle.getLaneID(vid)
+        if not lane:
+            return None
+        edge, _, index = lane.rpartition("_")
         if edge in self.lanes_of:
-            return self.slot(traci.vehicle.getLaneIndex(vid), edge)
+            return self.slot(int(index), edge)
         xs, ys = traci.vehicle.getPosition(vid)
         return self.road.nearest_slot(xs - self.x0, self.y_left - ys)
 

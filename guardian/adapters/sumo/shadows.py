@@ -47,7 +47,7 @@ class Shadows:
         """Shadows of ``vid`` (body centred at ``(x, y)``, SUMO told it is on slot ``own``) on every other slot of
         ``slots`` (the lanes its body overlaps), at its next state; SUMO moves them in its next step."""
         mine = self.live.setdefault(vid, {})
-        wanted = set(slots) - {own}
+        wanted = {k for k in slots if k != own and self.frame.on_corridor(k, x)}   # a ramp's or exit's: none
         for slot in [s for s in mine if s not in wanted]:
             traci.vehicle.remove(mine.pop(slot))
         front = x + length / 2 * math.cos(heading)
@@ -79,4 +79,4 @@ class Shadows:
         """The slots where SUMO has ``vid`` or one of its shadows now (its drivers see the body there)."""
         present = set(traci.vehicle.getIDList())
         ids = [vid, *self.live.get(vid, {}).values()]
-        return {self.frame.slot_of(traci, v) for v in ids if v in present}
+        return {self.frame.slot_of(traci, v) for v in ids if v in present} - {None}

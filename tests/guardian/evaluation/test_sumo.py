@@ -398,3 +398,18 @@ def test_roads_that_cannot_be_built_are_refused_by_name():
                        ({"exit_at": 2900.0}, "exit_at must"), ({"ramp_offset": -1.0}, "ramp_offset")):
         with pytest.raises(ConfigError, match=match):
             HighwayNet(**bad)
+
+
+def test_a_vehicle_driven_off_the_lanes_near_a_ramp_is_counted_not_a_crash_of_the_process():
+    """Seed 7: the unguarded seeking driver leaves the main road towards the on-ramp, where SUMO has it on no lane;
+    asking libsumo for its edge then killed the process (a segmentation fault)."""
+    import json
+    import subprocess
+    import sys
+
+    run = [sys.executable, "-m", "guardian.cli", "sumo", "--road", "merge", "--agent", "seek", "--no-guardian",
+           "--episodes", "1", "--seed", "7", "--json"]
+    done = subprocess.run(run, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (row,) = json.loads(done.stdout)["rows"]
+    assert row["collisions"] == 1 and row["ego_lane_unseen"] > 0   # it crashed, and SUMO's drivers lost sight of it
