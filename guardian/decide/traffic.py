@@ -97,18 +97,21 @@ class TrafficSupervisor:
 
     def leader_speeds(self, scene: Scene) -> list:
         """``[(lane, car, next ego speeds self-safe towards it), ...]`` for the nearest car ahead in each
-        lane the ego occupies (the parts of ``self_safe_speeds``, to say which car limits the ego)."""
+        lane the ego occupies (the parts of ``self_safe_speeds``, to say which car limits the ego), and for the
+        car whose rear is nearest when bodies ahead overlap along the road and that is another car."""
         p, ego = self.params, scene.ego
         out = []
         for lane in sorted(ego.lanes):
             car = self.leader(scene, lane)
             if car is None:
                 continue
-            h_next = _gap_after_step(p, ego, car)
-            if self.at_risk(scene, car):  # it may stand still from its next position on, pushed back
-                out.append((lane, car, self.S.speed_intervals(h_next - self.wreck_margin, 0.0)))
-            else:
-                out.append((lane, car, self.S.speed_intervals(h_next, float(p.worst_lead_speed(min(car.speed, p.v_max))))))
+            nearest = scene.nearest_rear_ahead(lane)
+            for c in (car,) if nearest is car else (car, nearest):
+                h_next = _gap_after_step(p, ego, c)
+                if self.at_risk(scene, c):  # it may stand still from its next position on, pushed back
+                    out.append((lane, c, self.S.speed_intervals(h_next - self.wreck_margin, 0.0)))
+                else:
+                    out.append((lane, c, self.S.speed_intervals(h_next, float(p.worst_lead_speed(min(c.speed, p.v_max))))))
         return out
 
     def at_risk(self, scene: Scene, car: Car) -> str:

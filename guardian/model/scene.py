@@ -53,6 +53,16 @@ class Scene:
         """The nearest car in ``lane`` whose front is behind the ego's (None if there is none)."""
         return self._neighbours(lane)[1]
 
+    def nearest_rear_ahead(self, lane: int):
+        """Of the cars in ``lane`` whose front is at or ahead of the ego's, the one whose rear is nearest (None if
+        there is none). It is the leader unless bodies ahead overlap along the road: a car standing with its front
+        just past a lane's end (a standing car of length 0), a wreck, a long car straddling into the lane."""
+        cache = self.__dict__.setdefault("_rear_ahead", {})
+        if lane not in cache:
+            ahead = [c for c in self.others if lane in c.lanes and c.front >= self.ego.front]
+            cache[lane] = min(ahead, key=lambda c: (c.front - c.length, c.front)) if ahead else None
+        return cache[lane]
+
     def _neighbours(self, lane: int):
         cache = self.__dict__.setdefault("_lane_neighbours", {})
         if lane not in cache:
