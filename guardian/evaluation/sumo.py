@@ -392,7 +392,7 @@ class _Episode:
             car.lane = lane
             body = road.body_slots(x, y, heading, self.setting.ego_length, self.setting.ego_width)
             out["ego_lane_unseen"] += not body <= self.shadows.lanes_seen(traci, car.name)
-            if x > self.setting.net.length - 50:   # at the road's end: leaves
+            if self.frame.leaving(x, y):   # at the road's end, or the end of the exit it took: leaves
                 self._leave(car.name)
 
     def _close(self) -> None:

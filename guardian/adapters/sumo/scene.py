@@ -99,6 +99,17 @@ class Frame:
         return {"kind": "straight", "start": list(start), "end": list(end), "width": self.lane_width,
                 "length": length, "slot": slot, "s0": end[0] - length, "open_before": True}
 
+    def leaving(self, x: float, y: float, margin: float = 50.0) -> bool:
+        """Is a body centred at ``(x, y)`` within ``margin`` of where SUMO's network ends: the corridor's end, or
+        the end of an exit it took (the road model goes on past both)?"""
+        if x > self.length - margin:
+            return True
+        strip = self.road.on_branch(x, y) if isinstance(self.road, RoadMap) else None
+        if strip is None or not strip.open_after:
+            return False
+        s, _ = strip.local(x, y)
+        return float(s) > strip.length - margin
+
     def on_corridor(self, slot: int, x: float) -> bool:
         """Is slot ``slot`` a corridor lane at ``x`` (not only a ramp's or an exit's branch)?"""
         return self.road.slot_at(slot, x) if isinstance(self.road, RoadMap) else 0 <= slot < self.n_lanes

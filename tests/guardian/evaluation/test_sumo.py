@@ -413,3 +413,11 @@ def test_a_vehicle_driven_off_the_lanes_near_a_ramp_is_counted_not_a_crash_of_th
     assert done.returncode == 0, done.stderr[-2000:]
     (row,) = json.loads(done.stdout)["rows"]
     assert row["collisions"] == 1 and row["ego_lane_unseen"] > 0   # it crashed, and SUMO's drivers lost sight of it
+
+
+def test_a_guarded_vehicle_that_takes_the_exit_leaves_at_its_end():
+    """Seed 0: the reckless driver takes the exit; the road model goes on past the exit's end, SUMO's network does
+    not: the vehicle leaves there (before, it drove on off the network, unseen by SUMO on every later step)."""
+    r = run_episode(replace(EXIT, seconds=60.0), "reckless", 0, guarded=True)
+    assert r["inserted"] and r["collisions"] == 0 and r["guarded_lost"] == 0
+    assert r["ego_lane_unseen"] == 0 and r["steps"] < 600, r   # it left before the episode's end
