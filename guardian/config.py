@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from guardian.errors import ConfigError
+from guardian.model.reversing import ReversingCover
 
 CONFLICT_CHOICES = ("lead", "traffic")
 OVERAPPROXIMATIONS = ("trivial", "ordered")
@@ -35,6 +36,11 @@ class GuardianConfig:
         this much further back and the car into the lanes beside its own (its steering swings a reversing
         body); a reversal that goes further is counted (``guardian.adapters.highway_env.monitor``; docs/guardian.md "Reversing
         traffic" has the measurement behind the default).
+    reverse_horizon : float
+        [s] a car slower than ``traffic_accel * reverse_horizon`` may be driving backwards within this time and
+        is covered as one that does (``guardian.model.reversing.ReversingCover``; 0: only a car seen driving
+        backwards). The default is highway-env's policy period and the time a lane change commits the ego to
+        a lane (docs/guardian.md "Reversing traffic").
     overapprox : str
         ``trivial`` (highway-env traffic announces no lane change) or ``ordered``.
     use_intention : bool
@@ -57,6 +63,7 @@ class GuardianConfig:
     traffic_accel: float = 6.0
     wreck_margin: float = 1.0
     reverse_reach: float = REVERSE_REACH
+    reverse_horizon: float = 1.0
     overapprox: str = "trivial"
     use_intention: bool = True
     horizon: int = 10
@@ -73,10 +80,15 @@ class GuardianConfig:
         for name in ("h_min", "v_max", "traffic_accel"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"GuardianConfig.{name} must be positive, got {getattr(self, name)!r}")
-        for name in ("wreck_margin", "reverse_reach"):
+        for name in ("wreck_margin", "reverse_reach", "reverse_horizon"):
             if not (getattr(self, name) >= 0 and getattr(self, name) < float("inf")):
                 raise ConfigError(f"GuardianConfig.{name} must be finite and >= 0, got {getattr(self, name)!r}")
         if not self.override_penalty >= 0:
             raise ConfigError(f"GuardianConfig.override_penalty must be >= 0, got {self.override_penalty!r}")
         if self.horizon < 1 or self.start_attempts < 1:
             raise ConfigError("GuardianConfig.horizon and start_attempts must be at least 1")
+
+    @property
+    def reversing(self) -> ReversingCover:
+        """The cover for traffic that drives backwards (``reverse_reach``, ``reverse_horizon``)."""
+        return ReversingCover(self.reverse_reach, self.traffic_accel * self.reverse_horizon)

@@ -50,4 +50,4 @@ def guardian_body(config) -> dict:
     """The ``guardian`` options of a scene session from a ``guardian.config.GuardianConfig``."""
     return {"overapprox": config.overapprox, "h_min": _f(config.h_min), "v_max": _f(config.v_max),
             "traffic_accel": _f(config.traffic_accel), "wreck_margin": _f(config.wreck_margin),
-            "reverse_reach": _f(config.reverse_reach)}
+            "reverse_reach": _f(config.reverse_reach), "reverse_horizon": _f(config.reverse_horizon)}

@@ -23,11 +23,11 @@ from each step's request):
   next segment. A step counts when some traffic car's search, in its lane or a lane beside it, misses
   the guarded car that highway-env's connected-lane search (merge-v1, exit-v1) finds.
 * traffic that backs up further than the guardian's cover (``traffic_reversing_uncovered``): at each
-  simulation step the guardian takes a car seen driving backwards to stay ahead of ``x - reach`` from
-  then on, ``reach`` by ``guardian.model.reversing.reverse_reaches`` (``GuardianConfig.reverse_reach``, more behind
-  a car that reverses too; here cars follow each other on highway-env's lane index); a step counts when
-  some car is behind the furthest-forward of the bounds given since its reversal began (it ends at a step
-  seen at speed 0 or above).
+  simulation step the guardian takes a car that may be driving backwards (``ReversingCover.may_reverse``: slower
+  than ``below``) to stay ahead of ``x - reach`` from then on, ``reach`` by ``ReversingCover.reaches``
+  (``GuardianConfig.reversing``, more behind a car that may reverse too; here cars follow each other on
+  highway-env's lane index); a step counts when some car is behind the furthest-forward of the bounds given
+  since its cover began (it ends at a step seen at ``below`` or faster).
 
 With several guarded cars each has its own monitor (``observe(..., ego=vehicle)``); only one of them
 counts the traffic (``watch_traffic``), so that sums over the cars count each car once.
@@ -36,8 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from guardian.config import REVERSE_REACH
-from guardian.model.reversing import reverse_reaches
+from guardian.config import GuardianConfig
 
 TOL = 1e-6
 COUNTS = ("ego", "lead", "traffic", "traffic_blind", "traffic_reversing_uncovered")  # per decision period
@@ -60,15 +59,15 @@ class ModelCoverage:
         The overtake ego's model (6.3) and the lead's intention models (6.5)-(6.7).
     ego_kinematics : optional
         The bicycle ego's kinematics (``guardian.decide.kinematics``).
-    ego_stops_at_zero, watch_traffic, reverse_reach :
-        The ego's speed clipped at 0; count the traffic; the reversing cover (``GuardianConfig``).
+    ego_stops_at_zero, watch_traffic, reversing :
+        The ego's speed clipped at 0; count the traffic; the reversing cover (``GuardianConfig.reversing``).
     """
 
     def __init__(self, dt: float, d_bounds: tuple, v_max: float, overtake_params=None, intention_models=None,
                  ego_kinematics=None, ego_stops_at_zero: bool = False, watch_traffic: bool = True,
-                 reverse_reach: float = REVERSE_REACH):
+                 reversing=GuardianConfig().reversing):
         self.dt, self.d_bounds, self.v_max = dt, d_bounds, v_max
-        self.reverse_reach = reverse_reach
+        self.reversing = reversing
         self.watch_traffic = watch_traffic
         self.ego_stops_at_zero = ego_stops_at_zero
         self.p = overtake_params
@@ -125,13 +124,14 @@ class ModelCoverage:
     def _reversal_step(self, ids, x_v, lanes) -> None:
         """Keep each reversing car's bound; ``_uncovered``: 1 when some car is now behind its bound."""
         self._uncovered = 0
-        if not np.any(x_v[:, 1] < 0):
+        cover = self.reversing
+        if not cover.any_may(x_v[:, 1]):
             self._bound = {}
             return
-        reach = reverse_reaches(x_v[:, 0].tolist(), x_v[:, 1].tolist(), lanes, self.reverse_reach)
+        reach = cover.reaches(x_v[:, 0].tolist(), x_v[:, 1].tolist(), lanes)
         bound = {}
         for car, (x, speed), r in zip(ids.tolist(), x_v, reach):
-            if speed < 0:
+            if cover.may_reverse(speed):
                 b = bound[car] = max(self._bound.get(car, -np.inf), x - r)
                 self._uncovered |= int(x < b - TOL)
         self._bound = bound

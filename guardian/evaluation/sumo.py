@@ -204,7 +204,8 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
         traci.simulationStep()
     frame = Frame(traci, setting.net.corridor, setting.net.ramp, setting.net.exit)
     accel = traffic_accel_of(traci)
-    config = replace(config or GuardianConfig(), traffic_accel=accel)
+    # SUMO's vehicles never drive backwards: the cover for reversing traffic waits for a negative speed
+    config = replace(config or GuardianConfig(), traffic_accel=accel, reverse_horizon=0.0)
     out = {"steps": 0, "vehicle_steps": 0, "collisions": 0, "sumo_collisions": 0, "shadow_collisions": 0,
            "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0, "at_fault_after_outside": 0, "crashes": [],
            "guarded": setting.guarded, "starts_outside": 0, "start_inside": None, "overrides": 0,
@@ -355,7 +356,7 @@ class _Episode:
         """One guarded vehicle: propose, decide (or not), move by the model, tell SUMO, place its shadows."""
         out, kin, setting = self.out, self.kin, self.setting
         proposed = car.drive(me, others, t)
-        seen = scene(self.frame, me, others, self.config.reverse_reach, kin.LATERAL_MARGIN)
+        seen = scene(self.frame, me, others, self.config.reversing, kin.LATERAL_MARGIN)
         if self.guarded:
             applied, d = car.guard.step(ego_state(me), seen, proposed)
             out["overrides"] += d.changed != "none"

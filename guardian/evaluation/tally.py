@@ -72,7 +72,7 @@ class HighwayTally(Observer):
             g = self.config
             self.monitor = ModelMonitor(env.unwrapped.params.dt, (-g.traffic_accel, g.traffic_accel), g.v_max,
                                         env.unwrapped.params, candidates, ego_stops_at_zero=True,
-                                        reverse_reach=g.reverse_reach)
+                                        reversing=g.reversing)
 
     def start_episode(self, env, episode, obs) -> None:
         base = env.unwrapped
@@ -261,7 +261,7 @@ class HighwayTally(Observer):
           lane segment; per guarded car); each crash row's ``steps_since_traffic_blind`` counts the policy
           steps since the crashed car's last such step (None: none this episode). Guarded runs only.
         * ``traffic_reversing_uncovered_steps``: policy steps in which some traffic car had backed up further
-          than the guardian covers (``GuardianConfig.reverse_reach``; ``guardian.adapters.highway_env.monitor``). Guarded runs only.
+          than the guardian covers (``GuardianConfig.reversing``; ``guardian.adapters.highway_env.monitor``). Guarded runs only.
         * ``reversing_steps``: steps ending with a negative speed (per guarded car). ``unsupervised_steps``:
           simulation steps the guardian's hook did not see. ``reattachments``: steps at which the
           guardian found the ego reset or replaced behind its back.
@@ -308,7 +308,7 @@ class _SelfSafetyCheck:
     def __init__(self, base, road, car, multi: bool, config):
         c = config
         self.dt = 1.0 / base.config["simulation_frequency"]
-        self.road, self.accel, self.reverse_reach = road, c.traffic_accel, c.reverse_reach
+        self.road, self.accel, self.reversing = road, c.traffic_accel, c.reversing
         self.car = base.vehicle if car is None else car
         self.guarded = frozenset(id(v) for v in controlled_vehicles(base)) if multi else frozenset()
         self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
@@ -324,7 +324,7 @@ class _SelfSafetyCheck:
         else:
             lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
         scene = road_scene(base, self.road, self.road.numbering.itha_set(lanes), ego=ego, guarded=self.guarded,
-                           reverse_reach=self.reverse_reach)
+                           reversing=self.reversing)
         speeds, _ = self.traffic.self_safe_speeds(scene)
         v, reach = float(ego.speed), self.accel * self.dt
         return any(max(lo, v - reach) <= min(hi, v + reach) for lo, hi in speeds)

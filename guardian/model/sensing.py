@@ -8,15 +8,14 @@ A car occupies every lane its body overlaps (widened by ``margin``, as the guard
 lanes its reader says it is in or moving to (``lanes``: a lane index, a target lane), the lanes beside those
 when it may swing sideways (``swings``: a car driving backwards, whose steering swings its body), the
 lanes its reader adds beside it (``beside``), and, for another guarded car, the lanes it announced.
-A car driving backwards is taken longer at its rear by how far it may still back up
-(``guardian.model.reversing``).
+A car that may be driving backwards before the next look is taken longer at its rear by how far it may still back
+up (``reversing``, a ``guardian.model.reversing.ReversingCover``).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from guardian.model.body import half_extents
-from guardian.model.reversing import lengthen_reversing
 from guardian.model.scene import Car, Scene
 
 
@@ -62,12 +61,12 @@ def car_of(road, s: Sensed, margin: float) -> Car:
     return Car(s.front, s.speed, lanes, s.length, s.name, s.announces, s.crashed, s.fixed, s.blind, s.across())
 
 
-def scene_of(road, ego: Car, sensed, reverse_reach: float, margin: float, fixed=()) -> Scene:
+def scene_of(road, ego: Car, sensed, reversing, margin: float, fixed=()) -> Scene:
     """The ``Scene`` of ``ego`` among ``sensed`` cars on ``road`` (``Road`` or ``RoadMap``); ``fixed`` are cars
     added as they are (a lane's end as a standing car of length 0)."""
     moving = [s for s in sensed if not s.fixed]
     cars = [car_of(road, s, margin) for s in moving]
     own = [road.numbering.itha(s.own) for s in moving]
-    cars = lengthen_reversing(cars, own, reverse_reach)
+    cars = reversing.lengthen(cars, own)
     cars += [car_of(road, s, margin) for s in sensed if s.fixed]
     return Scene(ego, tuple(cars) + tuple(fixed), road.n_lanes, tuple(sensed))

@@ -176,6 +176,7 @@ class GuardianSpec(_Strict):
     traffic_accel: Positive = 6.0
     wreck_margin: Finite = Field(1.0, ge=0)
     reverse_reach: Finite = Field(21.0, ge=0)
+    reverse_horizon: Finite = Field(1.0, ge=0)
 
     def config(self) -> GuardianConfig:
         return GuardianConfig(**self.model_dump())
@@ -292,7 +293,7 @@ class SceneGuardian:
 
     def scene(self, me: Car, cars):
         ends = self.road.end_cars() if isinstance(self.road, RoadMap) else ()
-        return scene_of(self.road, me, [self.sensed(c) for c in cars], self.config.reverse_reach,
+        return scene_of(self.road, me, [self.sensed(c) for c in cars], self.config.reversing,
                         BicycleEgo.LATERAL_MARGIN, ends)
 
     # ---- the routes' work -----------------------------------------------------------------------------------
@@ -326,7 +327,7 @@ class SceneGuardian:
         moving = [c for c in req.cars if not c.fixed and c.id != req.lead]
         ids = np.array([self.car_ids[c.id] for c in moving], dtype=np.int64)
         x_v = np.array([(c.x, c.speed) for c in moving], dtype=float).reshape(-1, 2)
-        lanes = [self.sensed(c).own for c in moving] if np.any(x_v[:, 1] < 0) else []
+        lanes = [self.sensed(c).own for c in moving] if self.ego.coverage.reversing.any_may(x_v[:, 1]) else []
         counts = self.ego.coverage.observe({"traffic": (ids, x_v), "lanes": lanes, **snapshot})
         names = ("ego", "lead", "traffic", "traffic_reversing_uncovered") if "x" in snapshot else \
             ("ego", "traffic", "traffic_reversing_uncovered")
@@ -350,7 +351,7 @@ class _Bicycle:
         self.scene = scene
         self.guard = BicycleGuardian(kin, c, meta=bool(v.meta))
         self.coverage = ModelCoverage(v.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, ego_kinematics=kin,
-                                      reverse_reach=c.reverse_reach)
+                                      reversing=c.reversing)
 
     def state(self, e: EgoSpec) -> EgoState:
         road = self.scene.road
@@ -393,7 +394,7 @@ class _PointMass:
         self.guard = PointMassGuardian(library, road.n_lanes, v.width / 2 / v.lateral_scale, True, c)
         self.coverage = ModelCoverage(v.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, library.params,
                                       {n: library.models[n] for n in ("aggressive", "cautious")},
-                                      ego_stops_at_zero=True, reverse_reach=c.reverse_reach)
+                                      ego_stops_at_zero=True, reversing=c.reversing)
         self.domain = ModelDomain.of(library)
 
     def lane_change(self, q: LaneChangeQuery) -> dict:

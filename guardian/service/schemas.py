@@ -52,7 +52,7 @@ _COVERED = {
            "or the point mass's (6.3)-(6.4) with its noise box).",
     "traffic": "Cars (by id) whose transition since the last step is outside (7.3): progress dt v, acceleration "
                "within +-guardian.traffic_accel, speed in [0, v_max].",
-    "traffic_reversing_uncovered": "Cars that backed up further than the guardian's cover (reverse_reach).",
+    "traffic_reversing_uncovered": "Cars that backed up further than the guardian's cover (reverse_reach, reverse_horizon).",
     "lead": "Point mass only: the lead's next speed is explained by no intention model (6.5)/(6.7).",
 }
 

@@ -23,8 +23,8 @@ class ModelMonitor(ModelCoverage):
         ids = np.fromiter((id(v) for v in others), dtype=np.int64, count=len(others))
         x_v = np.fromiter((c for v in others for c in (v.position[0], v.speed)), dtype=float,
                           count=2 * len(others)).reshape(-1, 2)
-        snap = {"traffic": (ids, x_v), "lanes": [tuple(v.lane_index or ()) for v in others] if np.any(x_v[:, 1] < 0)
-                else [], "applied": np.asarray(applied, float),
+        lanes = [tuple(v.lane_index or ()) for v in others] if self.reversing.any_may(x_v[:, 1]) else []
+        snap = {"traffic": (ids, x_v), "lanes": lanes, "applied": np.asarray(applied, float),
                 "ego": (float(ego.position[0]), float(ego.speed), float(ego.heading))}
         if lead is not None:
             snap["x"] = base.overtake_state()

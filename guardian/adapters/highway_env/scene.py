@@ -12,7 +12,7 @@ import functools
 from highway_env.vehicle.controller import ControlledVehicle
 
 from guardian.adapters.highway_env.blindness import blind_to, ego_probes
-from guardian.config import REVERSE_REACH
+from guardian.config import GuardianConfig
 from guardian.decide.kinematics import BicycleEgo
 from guardian.model.roads import RoadMap
 from guardian.model.scene import Car, EgoState, Scene
@@ -20,7 +20,7 @@ from guardian.model.sensing import Sensed, scene_of
 
 
 def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(), announced=None,
-               reverse_reach: float = REVERSE_REACH) -> Scene:
+               reversing=GuardianConfig().reversing) -> Scene:
     """The road as ITHA agents: the ego (in ITHA ``ego_lanes``) and every car but the overtake lead.
 
     A car occupies every lane its body overlaps (widened as the guardian widens its own: a slow car turning out
@@ -31,13 +31,13 @@ def road_scene(base, road, ego_lanes=frozenset(), ego=None, guarded=frozenset(),
     enters this step. On a ``RoadMap`` fronts are along the lanes' chains, obstacles are standing cars and each
     dead end is a standing car of length 0 (``guardian.model.roads``).
 
-    A car driving backwards (outside the traffic model) is taken longer at its rear by how far it may still
-    back up (``reverse_reach``, ``GuardianConfig``; more behind a car that reverses too) and in the lanes beside
-    its own too (its steering swings a reversing body).
+    A car that may be driving backwards before the next look (outside the traffic model) is taken longer at its
+    rear by how far it may still back up (``reversing``, ``GuardianConfig.reversing``; more behind a car that
+    reverses); one seen driving backwards is in the lanes beside its own too (its steering swings it).
     """
     ego = base.vehicle if ego is None else ego
     sensed = sensed_traffic(base, road, ego, guarded, announced or {})
-    return scene_of(road, ego_car(road, ego, ego_lanes, guarded), sensed, reverse_reach, BicycleEgo.LATERAL_MARGIN,
+    return scene_of(road, ego_car(road, ego, ego_lanes, guarded), sensed, reversing, BicycleEgo.LATERAL_MARGIN,
                     road.end_cars() if isinstance(road, RoadMap) else ())
 
 

@@ -81,7 +81,7 @@ class _Supervision:
 
     def scene(self, base, *args, **kwargs):
         """``road_scene`` of this road, with this configuration's cover for reversing traffic."""
-        return road_scene(base, self.road, *args, reverse_reach=self.config.reverse_reach, **kwargs)
+        return road_scene(base, self.road, *args, reversing=self.config.reversing, **kwargs)
 
     def _built(self, key, build) -> list:
         if key != self._key:
@@ -124,7 +124,7 @@ class OvertakeSupervision(_Supervision):
                 raise ConfigError(f"Guardian: {exc}") from None
             monitor = ModelMonitor(self.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, p,
                                    {n: self.library.models[n] for n in ("aggressive", "cautious")},
-                                   ego_stops_at_zero=True, reverse_reach=c.reverse_reach)
+                                   ego_stops_at_zero=True, reversing=c.reversing)
             return [(guard, monitor)]
 
         return self._built((self.road, self.dt, traffic, base.config["lateral_scale"]), build)
@@ -185,7 +185,7 @@ class RoadSupervision(_Supervision):
                 kin = BicycleEgo(self.dt, c.traffic_accel, ego.LENGTH, ego.WIDTH, self.road.lane_width,
                                  self.road.n_lanes, max_steer)
             monitor = ModelMonitor(self.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, ego_kinematics=kin,
-                                   watch_traffic=i == 0, reverse_reach=c.reverse_reach)
+                                   watch_traffic=i == 0, reversing=c.reversing)
             return BicycleGuardian(kin, c, meta=kind == META), monitor
 
         key = (self.road, self.dt, kind, max_steer, ego.LENGTH, ego.WIDTH, cars)

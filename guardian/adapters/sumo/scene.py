@@ -177,11 +177,11 @@ def ego_state(b: Sensed) -> EgoState:
     return EgoState(b.front, b.y, b.heading, b.speed, b.own, b.own, b.x)
 
 
-def scene(frame: Frame, ego: Sensed, others: list, reverse_reach: float, margin: float):
+def scene(frame: Frame, ego: Sensed, others: list, reversing, margin: float):
     """The scene of guarded vehicle ``ego`` among ``others``; on a road with a dead end, the end as a standing car."""
     me = Car(ego.front, ego.speed, frozenset(), ego.length, "ego")
     ends = frame.road.end_cars() if isinstance(frame.road, RoadMap) else ()
-    return scene_of(frame.road, me, others, reverse_reach, margin, ends)
+    return scene_of(frame.road, me, others, reversing, margin, ends)
 
 
 @dataclass

@@ -1,7 +1,8 @@
 """Traffic that drives backwards: highway-env lets its cars reverse (``Vehicle.MIN_SPEED = -40``; IDM brakes
 into reverse when it stands inside its desired gap), the traffic model (speeds in ``[0, v_max]``) does not.
-The guardian covers a reversing car ``GuardianConfig.reverse_reach`` metres further back and in the lanes
-beside its own; the monitor counts the steps where a car backed up further than that."""
+The guardian covers a car that may be reversing before it looks again (``GuardianConfig.reversing``: seen driving
+backwards, or slower than ``traffic_accel * reverse_horizon``) ``reverse_reach`` metres further back and in the
+lanes beside its own; the monitor counts the steps where a car backed up further than that."""
 import warnings
 from types import SimpleNamespace
 
@@ -16,7 +17,7 @@ from guardian.config import GuardianConfig
 from guardian.adapters.highway_env.monitor import ModelMonitor
 from guardian.evaluation.rollouts import Rollout, highway_rollouts
 from guardian.model.roads import Road
-from guardian.model.reversing import reverse_reaches
+from guardian.model.reversing import ReversingCover
 from guardian.adapters.highway_env.scene import road_scene
 from guardian.wrappers.guardian import Guardian
 
@@ -90,6 +91,68 @@ def test_a_guarded_car_never_reaches_a_car_that_backs_up_within_the_reach():
     assert inside_runs >= 15 and crashes_bare > 0
 
 
+class Creeper(Vehicle):
+    """Creeps forward at ``speed`` > 0, brakes at the traffic's bound (6 m/s^2) into reverse until ``-back_speed``,
+    then eases off to rest after backing up at most ``distance`` metres in all: IDM at standstill inside its gap."""
+
+    def __init__(self, road, position, speed: float, back_speed: float, distance: float):
+        super().__init__(road, position, speed=speed)
+        self.back_speed, self.distance, self.ease, self.backed = back_speed, distance, None, 0.0
+
+    def step(self, dt):
+        if self.ease is None and self.speed > -self.back_speed:
+            a = -6.0
+        else:
+            if self.ease is None:
+                self.ease = self.speed ** 2 / (2 * (self.distance - self.backed - abs(self.speed) * dt))
+            a = min(self.ease, -self.speed / dt) if self.speed < 0 else 0.0
+        self.action = {"steering": 0.0, "acceleration": a}
+        self.backed -= min(self.speed, 0.0) * dt
+        super().step(dt)
+
+
+def _creeping_episode(env, rng) -> tuple:
+    """The ego, full throttle, approaches a car creeping forward that brakes into reverse at once; (crashed,
+    start inside, metres the car backed up)."""
+    env.reset(seed=int(rng.integers(1 << 30)))
+    base = env.unwrapped
+    ego = base.vehicle
+    ego.position = np.array([100.0, 0.0])
+    ego.heading, ego.speed = 0.0, float(rng.uniform(5.0, 20.0))
+    reach = GuardianConfig().reverse_reach
+    gap = float(rng.uniform(12.0, 42.0)) + reach
+    car = Creeper(base.road, [ego.position[0] + ego.LENGTH + gap, 0.0], float(rng.uniform(0.1, 5.9)),
+                  float(rng.uniform(0.5, 3.0)), float(rng.uniform(2.0, reach)))
+    base.road.vehicles = [ego, car]
+    inside = env.starts_inside()[0]
+    for _ in range(12):
+        env.step(np.array([1.0, 0.0]))
+        if ego.crashed:
+            break
+    return ego.crashed, inside, car.backed
+
+
+def test_a_guarded_car_never_reaches_a_creeping_car_that_brakes_into_reverse():
+    """A falsifier: a car creeping forward (0.1-5.9 m/s, slower than ``traffic_accel * reverse_horizon``) brakes
+    into reverse and backs up at most ``reverse_reach``; from every start inside the ego, asking full throttle,
+    never touches it. With the cover only for cars seen driving backwards (``reverse_horizon = 0``, as highway-env
+    seed 41 of LineHuggingIDM found: a car seen at 0.73 m/s backed 2.8 m into the guarded car) the draws crash."""
+    rng = np.random.default_rng(5)
+    covered, late = _highway(GuardianConfig()), _highway(GuardianConfig(reverse_horizon=0.0))
+    inside_runs = crashes_late = 0
+    for _ in range(30):
+        state = rng.bit_generator.state
+        crashed, inside, backed = _creeping_episode(covered, rng)
+        assert backed <= GuardianConfig().reverse_reach
+        if inside:
+            inside_runs += 1
+            assert not crashed
+        rng.bit_generator.state = state
+        crashed, inside, _ = _creeping_episode(late, rng)
+        crashes_late += crashed and inside
+    assert inside_runs >= 15 and crashes_late > 0
+
+
 def test_behind_a_queue_that_backs_up_the_reach_adds_up(monkeypatch):
     """The same falsifier behind two cars that reverse, the nearer one backing up to ``reverse_reach`` more
     than its leader: no contact from a start inside; with one reach per car (no queue rule) the draws crash."""
@@ -102,8 +165,8 @@ def test_behind_a_queue_that_backs_up_the_reach_adds_up(monkeypatch):
 
     with_queue = outcomes(11)
     assert len(with_queue) >= 15 and not any(with_queue)
-    monkeypatch.setattr(reversing, "reverse_reaches", lambda fronts, speeds, lanes, reach:
-                        [reach if s < 0 else 0.0 for s in speeds])
+    monkeypatch.setattr(reversing.ReversingCover, "reaches", lambda self, fronts, speeds, lanes:
+                        [self.reach if self.may_reverse(s) else 0.0 for s in speeds])
     assert any(outcomes(11))
 
 
@@ -115,15 +178,17 @@ def test_a_reversing_car_is_taken_longer_and_in_the_lanes_beside_it():
     for speed, lanes, length in ((-1.0, {1, 2}, 5.0 + 3.0), (1.0, {2}, 5.0)):
         car = Vehicle(base.road, [150.0, 0.0], speed=speed)
         base.road.vehicles = [base.vehicle, car]
-        (seen,) = road_scene(base, road, reverse_reach=3.0).others
+        (seen,) = road_scene(base, road, reversing=ReversingCover(3.0)).others
         assert (set(seen.lanes), seen.length) == (lanes, length)
+    (seen,) = road_scene(base, road, reversing=ReversingCover(3.0, below=2.0)).others   # creeping: may reverse soon
+    assert (set(seen.lanes), seen.length) == ({2}, 8.0)   # longer, and swings only once it drives backwards
     base.road.vehicles = [base.vehicle, Vehicle(base.road, [150.0, 0.0], speed=-1.0),
                           Vehicle(base.road, [140.0, 0.0], speed=-1.0)]
-    assert [c.length for c in road_scene(base, road, reverse_reach=3.0).others] == [8.0, 11.0]   # a queue
+    assert [c.length for c in road_scene(base, road, reversing=ReversingCover(3.0)).others] == [8.0, 11.0]   # a queue
 
 
 def _monitor(reach, *cars):
-    monitor = ModelMonitor(0.1, (-6.0, 6.0), 40.0, watch_traffic=True, reverse_reach=reach)
+    monitor = ModelMonitor(0.1, (-6.0, 6.0), 40.0, watch_traffic=True, reversing=ReversingCover(reach))
     monitor._bicycle_fits = lambda prev, now: True
     ego = SimpleNamespace(position=np.zeros(2), speed=0.0, heading=0.0, lane_index=("a", "b", 1))
     return monitor, SimpleNamespace(vehicle=ego, road=SimpleNamespace(vehicles=[ego, *cars]))
@@ -150,8 +215,12 @@ def test_the_monitor_counts_the_steps_a_car_backs_up_beyond_the_reach():
 @pytest.mark.parametrize("leader_reverses, counted", [(True, 0), (False, 1)])
 def test_a_car_behind_a_car_that_reverses_too_may_back_up_further(leader_reverses, counted):
     """A queue that reverses backs up link by link: the second car's reach adds its leader's."""
-    assert reverse_reaches([30.0, 20.0, 10.0, 5.0], [-1.0, -1.0, 2.0, -1.0], [1, 1, 1, 1], 4.0) == [4.0, 8.0, 0.0, 4.0]
-    assert reverse_reaches([30.0, 20.0], [-1.0, -1.0], [1, 2], 4.0) == [4.0, 4.0]   # other lanes: no queue
+    cover = ReversingCover(4.0)
+    assert cover.reaches([30.0, 20.0, 10.0, 5.0], [-1.0, -1.0, 2.0, -1.0], [1, 1, 1, 1]) == [4.0, 8.0, 0.0, 4.0]
+    assert cover.reaches([30.0, 20.0], [-1.0, -1.0], [1, 2]) == [4.0, 4.0]   # other lanes: no queue
+    creeping = ReversingCover(4.0, below=3.0)   # the car at 2 m/s may reverse soon, behind a car that reverses;
+    assert creeping.reaches([30.0, 20.0, 10.0, 5.0], [-1.0, -1.0, 2.0, -1.0], [1, 1, 1, 1]) == [4.0, 8.0, 12.0, 4.0]
+    assert creeping.reaches([30.0, 20.0], [0.0, 1.0], [1, 1]) == [4.0, 4.0]   # a slow queue: one reach each
     leader, follower = _car(60.0), _car(50.0)
     monitor, base = _monitor(0.5, leader, follower)
     seen = []
