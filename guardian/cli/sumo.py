@@ -6,9 +6,9 @@ import itertools
 
 from guardian.cli.common import count, emit, number, output_file, output_folder, positive_number, usage_error
 from guardian.cli.progress import ProgressBar
+from guardian.evaluation.sumo_agents import AGENTS
 
 TRAFFIC = ("Krauss", "IDM", "EIDM")
-AGENTS = ("random", "reckless", "seek")
 DECEL = 4.5          # [m/s^2] the traffic's decel (guardian.adapters.sumo.network.Traffic)
 MIN_LENGTH = 500.0    # [m]
 MAX_FLOW = 36_000.0  # [vehicles per hour] one per SUMO step of 0.1 s: SUMO refuses a denser flow
@@ -54,7 +54,7 @@ def _write_scenario(args, setting) -> int:
     from pathlib import Path
 
     from guardian.adapters.sumo.network import sumo_home
-    from guardian.evaluation.sumo import write_scenario
+    from guardian.evaluation.sumo_setting import write_scenario
 
     cfg = write_scenario(setting, Path(args.write_scenario), args.seed)
     command = [str(sumo_home() / "bin" / "sumo"), "-c", str(cfg), "--remote-port", "8813"]
@@ -107,7 +107,7 @@ def _emit(args, done: dict, wall: float, interrupted: bool = False) -> None:
 
 def _cells(args) -> list:
     from guardian.adapters.sumo.network import HighwayNet, Traffic
-    from guardian.evaluation.sumo import SumoSetting
+    from guardian.evaluation.sumo_setting import SumoSetting
 
     def setting(traffic: str, sublane: bool):
         at = {"straight": {}, "merge": {"ramp_at": args.length / 3}, "exit": {"exit_at": args.length / 3}}[args.road]
@@ -210,7 +210,9 @@ def _service(args):
 def add_commands(sub) -> None:
     p = sub.add_parser("sumo", help="guarded episodes among Eclipse SUMO's traffic (needs guardian[sumo])")
     p.add_argument("--episodes", type=count(1), default=4, help="episodes per setting (4)")
-    p.add_argument("--agent", choices=AGENTS, default=None, help="the driver the guardian supervises (reckless)")
+    p.add_argument("--agent", choices=AGENTS, default=None,
+                   help="the driver the guardian supervises: random, reckless, seek (the nearest body ahead) or sumo "
+                        "(SUMO's own car-following and lane-change models with its lane-change checks off) (reckless)")
     p.add_argument("--traffic", choices=TRAFFIC, default=None, help="SUMO's car-following model (Krauss)")
     p.add_argument("--sublane", action="store_true",
                    help="SL2015 with 0.8 m sublanes: traffic drifts inside and across lanes (default LC2013)")

@@ -41,127 +41,24 @@ from __future__ import annotations
 
 import math
 import tempfile
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from guardian.adapters.sumo import network
-from guardian.adapters.sumo.connection import close_sumo, open_sumo, parse_connection
-from guardian.adapters.sumo.network import HighwayNet, Traffic
+from guardian.adapters.sumo.connection import close_sumo, open_sumo
 from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap, place, scene
-from guardian.adapters.sumo.shadows import SHADOW_TYPE, Shadows, is_shadow
+from guardian.adapters.sumo.shadows import Shadows, is_shadow
 from guardian.config import GuardianConfig
 from guardian.decide.bicycle import BicycleGuardian
 from guardian.decide.kinematics import BicycleEgo, RoadMapEgo
-from guardian.errors import ConfigError
 from guardian.evaluation.sumo_agents import agent_of
 from guardian.evaluation.sumo_judge import Tracks, at_fault
+from guardian.evaluation.sumo_setting import SumoSetting, guarded_names, insert_guarded, sumo_args, traffic_accel_of
 from guardian.model.roads import RoadMap
 from itha.road import example8_order
 
-EGO = "guarded"
 PLACEMENT_TOL = 1e-3  # [m] SUMO's placement of the guarded vehicle against the model's state
-
-
-@dataclass(frozen=True)
-class SumoSetting:
-    """One SUMO scenario: the road, the traffic, the step, how long, the guarded vehicle's body and steering."""
-
-    net: HighwayNet = field(default_factory=HighwayNet)
-    traffic: Traffic = field(default_factory=Traffic)
-    step_length: float = 0.1
-    warmup: float = 40.0
-    seconds: float = 60.0
-    ego_length: float = 5.0
-    ego_width: float = 2.0
-    max_steering: float = math.pi / 4
-    depart_speed: float = 25.0
-    guarded: int = 1            # guarded vehicles (each its own guardian and driver; every other vehicle is traffic)
-    connection: str = "libsumo"  # libsumo, traci or HOST:PORT (guardian.adapters.sumo.connection)
-
-    def __post_init__(self):
-        if self.guarded < 1:
-            raise ConfigError(f"guarded must be >= 1, got {self.guarded}")
-        parse_connection(self.connection)
-        for name in ("step_length", "warmup", "seconds", "ego_length", "ego_width", "max_steering"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
-        if self.max_steering >= math.pi / 2:
-            raise ConfigError(f"max_steering must be below pi/2, got {self.max_steering}")
-
-
-def traffic_accel_of(traci) -> float:
-    """The hardest braking any traffic vehicle type allows (its emergencyDecel): the traffic model's bound."""
-    decels = [traci.vehicletype.getEmergencyDecel(t) for t in traci.vehicletype.getIDList()
-              if t not in (EGO, SHADOW_TYPE) and not t.startswith("DEFAULT_")]
-    return max(decels)
-
-
-def sumo_args(setting: SumoSetting, folder: Path, seed: int) -> list:
-    """SUMO's command line (without the binary) for ``setting`` with ``seed``; the network and routes it names are
-    written into ``folder``."""
-    net = network.build_network(setting.net, folder)
-    body = (setting.ego_length, setting.ego_width, setting.traffic.emergency_decel)
-    routes = network.write_routes(setting.traffic, [(EGO, *body), (SHADOW_TYPE, *body)], folder, setting.net,
-                                  setting.warmup + setting.seconds + 10)
-    args = ["-n", str(net.resolve()), "-r", str(routes.resolve()), "--step-length", f"{setting.step_length:g}",
-            "--seed", str(seed), "--collision.action", "warn", "--collision.mingap-factor", "0", "--no-step-log",
-            "true", "--no-warnings", "true", "--duration-log.disable", "true", "--default.speeddev",
-            f"{setting.traffic.speed_factor_dev:g}"]
-    if setting.traffic.sublane:
-        args += ["--lateral-resolution", f"{setting.traffic.lateral_resolution:g}"]
-    if setting.guarded > 1:  # inserted at once: one that must wait does not hold up the others
-        args += ["--eager-insert", "true"]
-    return args
-
-
-def write_scenario(setting: SumoSetting, folder: Path, seed: int = 0) -> Path:
-    """The scenario's files in ``folder`` and ``folder``/guardian.sumocfg naming them, for a SUMO server
-    (``sumo -c guardian.sumocfg --remote-port PORT``) that a ``HOST:PORT`` connection then reloads per episode."""
-    import subprocess
-
-    folder.mkdir(parents=True, exist_ok=True)
-    cfg = (folder / "guardian.sumocfg").resolve()
-    done = subprocess.run([str(network.sumo_home() / "bin" / "sumo"), *sumo_args(setting, folder, seed),
-                           "--save-configuration", str(cfg)], capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise ConfigError(f"sumo could not write {cfg}: {done.stderr.strip()[-500:]}")
-    return cfg
-
-
-def guarded_names(setting: SumoSetting) -> list:
-    return [EGO] if setting.guarded == 1 else [f"{EGO}.{k}" for k in range(setting.guarded)]
-
-
-def _insert(traci, setting: SumoSetting, frame: Frame, rng: np.random.Generator) -> bool:
-    """Insert the guarded vehicles at ``depart_speed`` (one on a random main lane at 25-45 % of the road; several on
-    free lanes, evenly spaced over 10-80 % of it); False if SUMO found no room for all of them within 20 s."""
-    names, length = guarded_names(setting), setting.net.length
-    for k, name in enumerate(names):
-        if len(names) == 1:
-            index, pos = int(rng.integers(setting.net.lanes)), float(rng.uniform(0.25, 0.45) * length)
-            edge, index = frame.lane_at(setting.net.lanes - 1 - index, pos)
-            lane = str(index)
-        else:
-            pos = length * (0.1 + 0.7 * (k + 0.5) / len(names))
-            edge, lane = frame.edge_at(pos), "free"
-            if frame.lanes_of[edge] > setting.net.lanes:   # not on an acceleration lane: just after it
-                pos, edge = frame.extent[edge][1] + 10.0 + k, frame.edges[frame.edges.index(edge) + 1]
-        traci.vehicle.add(name, f"from_{edge}", typeID=EGO, departLane=lane,
-                          departPos=f"{pos - frame.extent[edge][0]:g}", departSpeed=f"{setting.depart_speed:g}")
-    for _ in range(200):
-        traci.simulationStep()
-        present = set(traci.vehicle.getIDList())
-        for n in names:   # SUMO drives them until all are in: at their insertion speed (SUMO's checks on)
-            if n in present:
-                traci.vehicle.setSpeed(n, setting.depart_speed)
-        if all(n in present for n in names):
-            for n in names:
-                traci.vehicle.setSpeedMode(n, 0)
-                traci.vehicle.setLaneChangeMode(n, 0)
-            return True
-    return False
 
 
 @dataclass
@@ -212,7 +109,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
            "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
-           "inserted": _insert(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
+           "inserted": insert_guarded(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
     if out["inserted"]:
         _Episode(traci, setting, frame, config, guarded, out, recorder).run(agent, rng, ask, label)
     return out
@@ -244,7 +141,8 @@ class _Episode:
             if ask is not None and self.guarded:
                 guard = ask(guard, self.frame.road)
             own = rng if single else np.random.default_rng([int(rng.integers(1 << 31))])  # one driver each
-            self.cars.append(Guarded(name, guard, agent_of(agent, setting, own), self.frame.body(traci, name).x))
+            driver = agent_of(agent, setting, own, traci=traci, vehicle=name, road=self.frame.road)
+            self.cars.append(Guarded(name, guard, driver, self.frame.body(traci, name).x))
         t0 = traci.simulation.getTime()
         if self.recorder is not None:
             self.recorder.start_episode(label, self.frame, self.frame.body(traci, self.cars[0].name))
@@ -441,6 +339,3 @@ def summary(results: list) -> dict:
             **({"service_steps": sum(r.get("service_steps", 0) for r in inserted),
                 "service_disagreements": sum(r.get("service_disagreements", 0) for r in inserted)}
                if any("service_steps" in r for r in inserted) else {})}
-
-def setting_dict(setting: SumoSetting) -> dict:
-    return asdict(setting)

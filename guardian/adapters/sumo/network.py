@@ -190,22 +190,29 @@ def build_network(net: HighwayNet, folder: Path) -> Path:
     return out
 
 
+CAR_FOLLOWING_XML = {"Krauss": 'carFollowModel="Krauss"', "IDM": 'carFollowModel="IDM"', "EIDM": 'carFollowModel="EIDM"'}
+
+
 def vtype_xml(type_id: str, t: Traffic) -> str:
-    model = {"Krauss": 'carFollowModel="Krauss"', "IDM": 'carFollowModel="IDM"', "EIDM": 'carFollowModel="EIDM"'}
-    return (f'<vType id="{type_id}" {model[t.car_following]} laneChangeModel="{t.lane_change}" accel="{t.accel:g}" '
+    return (f'<vType id="{type_id}" {CAR_FOLLOWING_XML[t.car_following]} laneChangeModel="{t.lane_change}" accel="{t.accel:g}" '
             f'decel="{t.decel:g}" emergencyDecel="{t.emergency_decel:g}" apparentDecel="{t.decel:g}" '
             f'sigma="{t.sigma:g}" tau="{t.tau:g}" length="{t.length:g}" width="{t.width:g}" '
             f'maxSpeed="{t.max_speed:g}" speedDev="{t.speed_factor_dev:g}" maxSpeedLat="{t.max_speed_lat:g}"/>')
 
 
-def write_routes(t: Traffic, ego_types: list, folder: Path, net: HighwayNet, seconds: float) -> Path:
+def write_routes(t: Traffic, ego_types: list, folder: Path, net: HighwayNet, seconds: float, drivers=()) -> Path:
     """The routes file: SUMO's flows of ``t`` (the main road's; with a ramp, the ramp's too) and the guarded vehicles'
     types (``(id, length, width, accel)``; their speed factor is high so that SUMO takes any speed they are given,
-    even on insertion). Route ``from_E`` runs from corridor edge ``E`` to the road's end (vehicles the guardian
-    moves are inserted on the edge where they start)."""
+    even on insertion); ``drivers``: types alike that carry the traffic's car-following and lane-change models and
+    parameters (no dawdling), for a guarded vehicle SUMO's own driver drives. Route ``from_E`` runs from corridor
+    edge ``E`` to the road's end (vehicles the guardian moves are inserted on the edge where they start)."""
+    external = f'maxSpeed="100" speedFactor="{EXTERNAL_SPEED_FACTOR:g}" speedDev="0"'
     egos = "\n".join(f'  <vType id="{tid}" length="{length:g}" width="{width:g}" accel="{accel:g}" decel="{accel:g}" '
-                     f'emergencyDecel="{accel:g}" sigma="0" maxSpeed="100" speedFactor="{EXTERNAL_SPEED_FACTOR:g}" speedDev="0"/>'
-                     for tid, length, width, accel in ego_types)
+                     f'emergencyDecel="{accel:g}" sigma="0" {external}/>' for tid, length, width, accel in ego_types)
+    egos += "".join(f'\n  <vType id="{tid}" {CAR_FOLLOWING_XML[t.car_following]} laneChangeModel="{t.lane_change}" '
+                    f'length="{length:g}" width="{width:g}" accel="{t.accel:g}" decel="{t.decel:g}" '
+                    f'emergencyDecel="{accel:g}" apparentDecel="{t.decel:g}" sigma="0" tau="{t.tau:g}" '
+                    f'maxSpeedLat="{t.max_speed_lat:g}" {external}/>' for tid, length, width, accel in drivers)
     corridor = net.corridor
     routes = "".join(f'  <route id="from_{e}" edges="{" ".join(corridor[k:])}"/>\n' for k, e in enumerate(corridor))
     flows = (f'  <flow id="traffic" type="traffic" route="from_{corridor[0]}" begin="0" end="{seconds:g}" '

@@ -2,11 +2,13 @@
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from guardian.adapters.sumo.network import HighwayNet
-from guardian.adapters.sumo.scene import BicycleModel, Frame, overlap
-from guardian.evaluation.sumo import SumoSetting, run_episode, summary
+from guardian.adapters.sumo.scene import BicycleModel, Frame, overlap, place
+from guardian.evaluation.sumo import run_episode, summary
+from guardian.evaluation.sumo_setting import SumoSetting
 from guardian.evaluation.sumo_judge import ENTRY_WINDOW, Tracks, at_fault
 from guardian.model.roads import road_from_dict
 from guardian.model.sensing import Sensed
@@ -203,7 +205,7 @@ def _crawler_and_follower(shadows: bool, seconds: float = 12.0):
     from guardian.adapters.sumo.network import Traffic
     from guardian.adapters.sumo.scene import place
     from guardian.adapters.sumo.shadows import Shadows
-    from guardian.evaluation.sumo import sumo_args
+    from guardian.evaluation.sumo_setting import sumo_args
     from guardian.adapters.sumo.connection import open_sumo
 
     setting = SumoSetting(traffic=Traffic(vehicles_per_hour=1.0))
@@ -287,7 +289,7 @@ def test_traci_and_a_sumo_server_give_the_episodes_libsumo_gives(tmp_path):
 
     from guardian.adapters.sumo.connection import close_servers
     from guardian.adapters.sumo.network import sumo_home
-    from guardian.evaluation.sumo import write_scenario
+    from guardian.evaluation.sumo_setting import write_scenario
 
     setting = SumoSetting(seconds=8.0, warmup=20.0, guarded=2)
     here = [run_episode(setting, "seek", seed) for seed in (1, 2)]
@@ -343,7 +345,7 @@ EXIT = SumoSetting(seconds=20.0, warmup=30.0, net=HighwayNet(exit_at=1000.0))
 
 def test_an_on_ramp_is_read_as_a_road_map_with_its_branch_and_its_dead_end(tmp_path):
     from guardian.adapters.sumo.connection import open_sumo
-    from guardian.evaluation.sumo import sumo_args
+    from guardian.evaluation.sumo_setting import sumo_args
     from guardian.model.roads import RoadMap
 
     traci = open_sumo("libsumo", sumo_args(MERGE, tmp_path, seed=0))
@@ -367,7 +369,7 @@ def test_an_on_ramp_is_read_as_a_road_map_with_its_branch_and_its_dead_end(tmp_p
 
 def test_an_exit_is_a_branch_leaving_the_deceleration_lane_which_is_no_dead_end(tmp_path):
     from guardian.adapters.sumo.connection import open_sumo
-    from guardian.evaluation.sumo import sumo_args
+    from guardian.evaluation.sumo_setting import sumo_args
 
     traci = open_sumo("libsumo", sumo_args(EXIT, tmp_path, seed=0))
     try:
@@ -421,3 +423,63 @@ def test_a_guarded_vehicle_that_takes_the_exit_leaves_at_its_end():
     r = run_episode(replace(EXIT, seconds=60.0), "reckless", 0, guarded=True)
     assert r["inserted"] and r["collisions"] == 0 and r["guarded_lost"] == 0
     assert r["ego_lane_unseen"] == 0 and r["steps"] < 600, r   # it left before the episode's end
+
+
+def _sumo_driver_beside_a_blocker(steps: int = 12):
+    """SUMO's driver (unguarded, moved by the model) 55 m behind a car at 10 m/s, a car driving beside it on the left
+    lane: per step its proposal and SUMO's lane-change state towards the left."""
+    import tempfile
+    from pathlib import Path
+
+    from guardian.adapters.sumo.connection import open_sumo
+    from guardian.adapters.sumo.network import Traffic
+    from guardian.adapters.sumo.scene import BicycleModel
+    from guardian.evaluation.sumo_agents import agent_of
+    from guardian.evaluation.sumo_setting import sumo_args
+
+    setting = SumoSetting(traffic=Traffic(vehicles_per_hour=1.0))
+    with tempfile.TemporaryDirectory() as tmp:
+        traci = open_sumo("libsumo", sumo_args(setting, Path(tmp), seed=0))
+        try:
+            frame = Frame(traci, setting.net.edge)
+            for vid, vtype, slot, pos, speed in (("guarded", "guarded", 2, 500, 20), ("slow", "traffic", 2, 560, 10),
+                                                 ("beside", "traffic", 1, 500, 20)):
+                traci.vehicle.add(vid, "from_highway", typeID=vtype, departLane=str(frame.sumo_lane(slot)),
+                                  departPos=str(pos), departSpeed=str(speed))
+            traci.simulationStep()
+            for vid in ("slow", "beside"):
+                traci.vehicle.setLaneChangeMode(vid, 0)
+            traci.vehicle.setSpeed("slow", 10.0)
+            drive = agent_of("sumo", setting, np.random.default_rng(0), traci=traci, vehicle="guarded", road=frame.road)
+            model, out = BicycleModel(setting.ego_length, setting.step_length), []
+            for k in range(steps):
+                me = frame.body(traci, "guarded")
+                traci.vehicle.setSpeed("beside", me.speed)
+                a, steer = drive(me, [], k * setting.step_length)
+                out.append((a, steer, traci.vehicle.getLaneChangeState("guarded", 1)[0]))
+                place(traci, frame, "guarded", *model.step(me.x, me.y, me.heading, me.speed, a, steer))
+                traci.simulationStep()
+            return out
+        finally:
+            traci.close()
+
+
+def test_sumos_driver_follows_its_car_following_model_and_changes_lanes_with_its_checks_off():
+    """The ``sumo`` agent brakes for the slower car ahead as SUMO's car-following model does, and steers into the
+    left lane as soon as SUMO's lane-change model wants to go there for speed, although SUMO says the change is
+    blocked by the car beside (its gap check is off)."""
+    from guardian.evaluation.sumo_agents import LCA_LEFT, LCA_WISHES
+
+    blocked = 512 | 1024 | 8192   # SUMO's LCA_BLOCKED_BY_LEFT_LEADER, _LEFT_FOLLOWER, LCA_OVERLAPPING
+    steps = _sumo_driver_beside_a_blocker()
+    assert all(a < 0 for a, _, _ in steps[1:]), steps
+    wanted = [k for k, (_, _, state) in enumerate(steps) if state & LCA_LEFT and state & LCA_WISHES]
+    assert wanted and steps[wanted[0]][2] & blocked, steps
+    assert steps[wanted[0] + 1][1] < 0, steps   # steering left (towards the smaller slot) from the next step
+
+
+def test_sumos_driver_guarded_causes_no_collision():
+    for seed in range(3):
+        r = run_episode(SHORT, "sumo", seed)
+        assert r["inserted"] and r["at_fault"] == 0 and r["guarded_lost"] == 0, r["crashes"]
+        assert r["ego_uncovered"] == 0, r
