@@ -56,7 +56,9 @@ def replay_text(result: dict) -> str:
              f"U = [{ulo:.3f}, {uhi:.3f}] m/s^2 ({cfg['input_bounds']}); h_min = {cfg['h_min']:g} m, "
              f"v_max = {cfg['v_max']:g} m/s",
              f"override rates on the held-out data: self-safety {_pct(r['self_safety'])}, "
-             f"responsibility trivial {_pct(r['responsibility_trivial'])}, ordered {_pct(r['responsibility_ordered'])}"]
+             f"responsibility (the recorded input) trivial {_pct(r['responsibility_trivial'])}, ordered "
+             f"{_pct(r['responsibility_ordered'])}; no input responsible: trivial "
+             f"{_pct(r.get('responsibility_trivial_no_input'))}, ordered {_pct(r.get('responsibility_ordered_no_input'))}"]
     if "rss_longitudinal" in r:
         lines.append(f"RSS beside them: longitudinal {_pct(r['rss_longitudinal'])} (calibrated "
                      f"{_pct(r.get('rss_longitudinal_calibrated'))}), cut-in {_pct(r.get('rss_cut_in'))} "

@@ -138,6 +138,7 @@ def _write_view(entry: Path, request: dict, data: ITHAData, vehicles: np.ndarray
     arrays.update({f"event_{k}": (np.concatenate([getattr(e, k) for e in events]) if events else np.zeros(0))
                    for k in _EVENT_ARRAYS})
     arrays.update(event_sizes=sizes, vehicles=vehicles, frame_rate=np.array(data.frame_rate),
+                  event_input=np.array([e.u for e in events], dtype=float),
                   event_meta=np.array([[e.vehicle, e.frame, e.ego, 1 if e.trigger == "left" else -1, e.n_lanes]
                                        for e in events], dtype=np.int64).reshape(-1, 5))
     tmp = entry.with_name(f"{entry.name}.tmp-{os.getpid()}")
@@ -153,7 +154,7 @@ def _write_view(entry: Path, request: dict, data: ITHAData, vehicles: np.ndarray
 
 
 _VIEW_ARRAYS = (*_POINT_ARRAYS, *(f"event_{k}" for k in _EVENT_ARRAYS), "event_sizes", "vehicles",
-                "frame_rate", "event_meta")
+                "frame_rate", "event_meta", "event_input")
 
 
 def _narrowest(a: np.ndarray) -> np.ndarray:
@@ -177,7 +178,8 @@ def _read_view(path: Path, recording_id: int) -> tuple[ITHAData, np.ndarray]:
         s, e = bounds[i], bounds[i + 1]
         data.lane_changes.append(LaneChange(recording_id, int(vehicle), int(frame), int(ego),
                                             "left" if side > 0 else "right",
-                                            *(a[f"event_{k}"][s:e] for k in _EVENT_ARRAYS), int(n_lanes)))
+                                            *(a[f"event_{k}"][s:e] for k in _EVENT_ARRAYS), int(n_lanes),
+                                            float(a["event_input"][i])))
     return data, a["vehicles"]
 
 

@@ -14,7 +14,8 @@ Along the direction of travel (``s`` grows the way the car drives; both directio
 * a lane-change event is a change of ``laneId`` between t and t+1. It carries a snapshot of every
   vehicle of that direction at frame t (positions, speeds, lanes, lengths) and each one's own
   trigger at t (lane at t+1 minus lane at t; unknown at the last frame of a track): the ego's
-  lane change can reset any of them (Appendix B).
+  lane change can reset any of them (Appendix B); and the ego's recorded input ``u`` at t, which
+  Definition 22 judges.
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ class LaneChange:
     length: np.ndarray
     shift: np.ndarray        # each vehicle's own lane shift at t (+1 left, -1 right, 0, or 9 unknown)
     n_lanes: int
+    u: float                 # the ego's recorded input at t, (v_{t+1} - v_t) / dt
     test: bool = False
 
 
@@ -120,7 +122,7 @@ def to_itha(rec: Recording) -> ITHAData:
     shift = np.where(has_next, lane[nxt] - lane, 9)
     data = ITHAData(rec.id, fr, ids[has_next], frames[has_next], direction[has_next], lane[has_next],
                     v[has_next], h[has_next], vL[has_next], u[has_next], d[has_next])
-    data.lane_changes = _lane_changes(rec, ids, frames, direction, s_front, v, lane, w, shift)
+    data.lane_changes = _lane_changes(rec, ids, frames, direction, s_front, v, lane, w, shift, u)
     return data
 
 
@@ -134,7 +136,7 @@ def _rows_of(ids: np.ndarray, frames: np.ndarray, vehicle: np.ndarray) -> np.nda
     return np.where((track >= 0) & (row >= 0) & (row < len(ids)), row, 0)
 
 
-def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift) -> list[LaneChange]:
+def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift, u) -> list[LaneChange]:
     events = np.flatnonzero((shift != 0) & (shift != 9))
     if not len(events):
         return []
@@ -151,5 +153,5 @@ def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift) 
         rows = order[np.searchsorted(sorted_group, k, "left"):np.searchsorted(sorted_group, k, "right")]
         out.append(LaneChange(rec.id, int(ids[r]), int(frames[r]), int(np.flatnonzero(rows == r)[0]),
                               "left" if shift[r] > 0 else "right", s_front[rows], v[rows], lane[rows],
-                              length[rows], shift[rows], n_up if direction[r] == 1 else n_low))
+                              length[rows], shift[rows], n_up if direction[r] == 1 else n_low, float(u[r])))
     return out

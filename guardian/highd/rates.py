@@ -78,14 +78,41 @@ class Training:
 
 
 def self_safety_overrides(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
-    """Boolean per point: the recorded input is not self-safe (7.4) (``car_following.unsafe_inputs``)."""
-    return unsafe_inputs(p, v, h, vL, u)
+    """Boolean per point: the recorded input is not self-safe (7.4) (``car_following.unsafe_inputs``), or the
+    point lies outside the state space (a negative speed of the ego or its lead: a recording's noise at
+    standstill, which (7.3) has no place for; counted as an override, never judged safe)."""
+    with np.errstate(invalid="ignore"):   # vL is NaN without a lead: not outside
+        outside = (np.asarray(v) < 0) | (np.asarray(vL) < 0)
+    return unsafe_inputs(p, v, h, vL, u) | outside
 
 
-def responsibility_overrides(p: CarFollowingParams, events, overapprox: str) -> int:
+@dataclass(frozen=True)
+class LaneChangeCounts:
+    """Lane changes judged by Definition 22 on the recorded input: ``overrides`` whose recorded input is not
+    ρ̂-responsible (the rate's numerator), ``no_input`` of them for which no input of U is (today's lower bound),
+    ``outside`` of them with a speed outside ``[0, v_max]`` in the snapshot (not judged: counted as overrides)."""
+
+    overrides: int = 0
+    no_input: int = 0
+    outside: int = 0
+
+    def __add__(self, other):
+        return LaneChangeCounts(self.overrides + other.overrides, self.no_input + other.no_input,
+                                self.outside + other.outside)
+
+
+def responsible(inputs, u: float) -> bool:
+    """Is the recorded input ``u`` in one of the responsible input intervals (closed)?"""
+    return any(lo <= u <= hi for lo, hi in inputs)
+
+
+def responsibility_overrides(p: CarFollowingParams, events, overapprox: str) -> LaneChangeCounts:
     S = MaximalSet(p)
-    refused = 0
+    overrides = no_input = outside = 0
     for e in events:
+        if np.any(e.v < 0) or np.any(e.v > p.v_max) or not 0 <= e.v[e.ego] + p.dt * e.u <= p.v_max:
+            overrides, no_input, outside = overrides + 1, no_input + 1, outside + 1
+            continue
         prm = HighwayParams(car_following=p, n_lanes=e.n_lanes, n_cars=len(e.p) - 1, ego_lane=int(e.lane[e.ego]))
         announced = {}
         if overapprox == "ordered":  # Example 8: ahead first; aligned, slower (lower) lane first
@@ -95,11 +122,11 @@ def responsibility_overrides(p: CarFollowingParams, events, overapprox: str) -> 
             announced = {k: shift_name.get(int(e.shift[k]), "stay") for k in range(len(e.p))
                          if k != e.ego and key[k] < me and int(e.shift[k]) in shift_name}
         sup = EgoSupervisor(prm, S, overapprox)
-        verdict = sup.lane_change([float(a) for a in e.p], [min(max(float(a), 0.0), p.v_max) for a in e.v],
-                                  [int(a) for a in e.lane], e.ego, e.trigger, announced,
-                                  lengths=[float(a) for a in e.length])
-        refused += not verdict.inputs
-    return refused
+        verdict = sup.lane_change([float(a) for a in e.p], [float(a) for a in e.v], [int(a) for a in e.lane], e.ego,
+                                  e.trigger, announced, lengths=[float(a) for a in e.length])
+        overrides += not responsible(verdict.inputs, float(e.u))
+        no_input += not verdict.inputs
+    return LaneChangeCounts(overrides, no_input, outside)
 
 
 def contexts_of(lane: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -121,7 +148,7 @@ def _overrides_chunked(p: CarFollowingParams, test: ITHAData, mask=None) -> np.n
 
 
 def _responsibility(p, events, overapprox: str, jobs=None):
-    """Refused lane changes, as a callable that returns the count.
+    """Lane changes judged (``LaneChangeCounts``), as a callable that returns them.
 
     With jobs that run beside this process (``rcis.parallel.Jobs``) the chunks are submitted at once and run
     on its workers while the caller goes on (the self-safety check here); the callable collects them.
@@ -130,22 +157,25 @@ def _responsibility(p, events, overapprox: str, jobs=None):
         return lambda: responsibility_overrides(p, events, overapprox)
     n = 16
     futures = [jobs.submit(responsibility_overrides, p, events[k::n], overapprox) for k in range(n)]
-    return lambda: sum(f.result() for f in futures)
+    return lambda: sum((f.result() for f in futures), LaneChangeCounts())
 
 
 def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, events, contexts: bool,
              jobs=None) -> dict:
     bounds = order_statistic_bounds(train.d, cfg.quantiles)
     p = car_following_params(cfg, dt, bounds, train.u_bounds(cfg))
-    refused = {k: _responsibility(p, events, k, jobs) for k in ("trivial", "ordered")}
+    judged = {k: _responsibility(p, events, k, jobs) for k in ("trivial", "ordered")}
     over = _overrides_chunked(p, test)
     rss_default, rss_calibrated = RSSParams(), calibrated_rss(p, dt)
     rss_over = longitudinal_violations(rss_default, test.v, test.h, test.vL)
     rss_cal_over = longitudinal_violations(rss_calibrated, test.v, test.h, test.vL)
+    refused = {k: collect() for k, collect in judged.items()}   # judged on the workers meanwhile
     out = {"disturbance_bounds": [bounds[0], bounds[1]], "input_bounds": [p.u_min, p.u_max],
            "override_rates": {"self_safety": float(over.mean()) if len(over) else 0.0,
-                              "responsibility_trivial": _rate(refused["trivial"](), events),
-                              "responsibility_ordered": _rate(refused["ordered"](), events),
+                              "responsibility_trivial": _rate(refused["trivial"].overrides, events),
+                              "responsibility_ordered": _rate(refused["ordered"].overrides, events),
+                              "responsibility_trivial_no_input": _rate(refused["trivial"].no_input, events),
+                              "responsibility_ordered_no_input": _rate(refused["ordered"].no_input, events),
                               "rss_longitudinal": float(rss_over.mean()) if len(rss_over) else 0.0,
                               "rss_longitudinal_calibrated": float(rss_cal_over.mean()) if len(rss_cal_over) else 0.0,
                               "rss_cut_in": _rate(sum(not _rss_cut_in(rss_default, e) for e in events), events),
@@ -154,7 +184,9 @@ def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, even
            "rss_params": {"default": asdict(rss_default), "calibrated": asdict(rss_calibrated),
                           "default_source": "ad-rss vehicle dynamics as CARLA sets them "
                                             "(LibCarla/source/carla/rss/RssCheck.cpp, GetDefaultVehicleDynamics)"},
-           "overrides": {"self_safety": int(over.sum()), "rss_longitudinal": int(rss_over.sum())}}
+           "overrides": {"self_safety": int(over.sum()), "rss_longitudinal": int(rss_over.sum()),
+                         **{f"responsibility_{k}{part}": n for k, c in refused.items()
+                            for part, n in (("", c.overrides), ("_no_input", c.no_input), ("_outside", c.outside))}}}
     if contexts:
         out["contexts"] = _context_rates(cfg, dt, train, test, bounds)
     return out

@@ -15,9 +15,15 @@ Rates (numerator / denominator):
 
 * ``self_safety``: test data points (vehicle-frames with a next frame) where the recorded input is
   not self-safe (7.4) — outside ``U``, or ``f(x, u, D) ⊄ C`` — / all test data points;
-* ``responsibility_trivial`` / ``responsibility_ordered``: test lane changes that are not
-  ρ̂-responsible (Definition 22) with the trivial ρ̂ (7.6) / the ordered one (Example 8: the cars
-  ahead announce their recorded triggers, the cars behind yield) / all test lane changes.
+* ``self_safety`` also counts a point outside the state space (a negative speed of the ego or its lead) as an
+  override: (7.3) has no place for it, so it is never judged safe;
+* ``responsibility_trivial`` / ``responsibility_ordered``: test lane changes whose **recorded input** is not
+  ρ̂-responsible (Definition 22 constrains the recorded pair: the input, not some input of U) with the trivial
+  ρ̂ (7.6) / the ordered one (Example 8: the cars ahead announce their recorded triggers, the cars behind
+  yield) / all test lane changes; a lane change with a speed outside ``[0, v_max]`` in its snapshot (or a
+  recorded next speed outside it) is not judged and counts as an override;
+* ``responsibility_trivial_no_input`` / ``..._ordered_no_input``: of those, the lane changes for which no input
+  of U is ρ̂-responsible (the rate this replay reported before it looked at the recorded input).
 """
 from __future__ import annotations
 

@@ -116,6 +116,7 @@ def test_highd_generate_and_replay_json(tmp_path, capsys):
     for key in ("data_points", "trajectories", "lane_changes", "disturbance_bounds", "override_rates"):
         assert key in data
     assert set(data["override_rates"]) == {"self_safety", "responsibility_trivial", "responsibility_ordered",
+                                           "responsibility_trivial_no_input", "responsibility_ordered_no_input",
                                            "rss_longitudinal", "rss_longitudinal_calibrated", "rss_cut_in",
                                            "rss_cut_in_calibrated"}
     from guardian.recording.rerun import read_entities

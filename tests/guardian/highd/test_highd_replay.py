@@ -203,3 +203,39 @@ def test_rerun_of_real_data_has_per_vehicle_series_and_a_blueprint(tmp_path):
         assert sum(1 for e in entities if e.startswith("/vehicles/") and e.endswith(name)) > 100, name
     assert entities.get("/road/vehicles", 0) == 3000 and entities.get("/road/markings") == 1
     assert len(list(RrdReader(str(rrd)).blueprints())) == 1
+
+
+def _moving_in(u: float, speeds=(30.0, 25.0), gap: float = 5.1):
+    """An ego at 30 m/s moves left in ``gap`` m behind a car at 25 m/s; its recorded input ``u``."""
+    from guardian.highd.convert import LaneChange
+
+    return LaneChange(1, 7, 100, 0, "left", np.array([0.0, gap + 5.0]), np.array(speeds), np.array([1, 2]),
+                      np.array([5.0, 5.0]), np.array([1, 0]), 2, u)
+
+
+@pytest.mark.parametrize("overapprox", ["trivial", "ordered"])
+def test_a_lane_change_is_judged_on_its_recorded_input(overapprox):
+    """Definition 22 constrains the recorded pair: the responsible inputs here are [-6, -2.5] m/s^2; a recorded 0
+    is an override although some input was responsible (today's old rule counted none); -4 is not."""
+    from guardian.highd.rates import LaneChangeCounts, car_following_params, responsibility_overrides
+
+    p = car_following_params(ReplayConfig(), 0.1, (-1.0, 1.0))
+    assert responsibility_overrides(p, [_moving_in(0.0)], overapprox) == LaneChangeCounts(1, 0, 0)
+    assert responsibility_overrides(p, [_moving_in(-4.0)], overapprox) == LaneChangeCounts(0, 0, 0)
+    assert responsibility_overrides(p, [_moving_in(-4.0, gap=4.5)], overapprox) == LaneChangeCounts(1, 1, 0)
+
+
+def test_speeds_outside_the_state_space_are_overrides_never_safe():
+    """A negative speed (a recording's noise at standstill) lies outside (7.3)'s state space: the point, and a lane
+    change with one in its snapshot, count as overrides, never as safe."""
+    from guardian.highd.rates import LaneChangeCounts, car_following_params, responsibility_overrides, \
+        self_safety_overrides
+
+    p = car_following_params(ReplayConfig(), 0.1, (-1.0, 1.0))
+    over = self_safety_overrides(p, np.array([-0.01, 0.0, 5.0]), np.array([50.0, 50.0, np.inf]),
+                                 np.array([0.0, -0.02, np.nan]), np.array([0.0, 0.0, 0.0]))
+    assert over.tolist() == [True, True, False]
+    assert responsibility_overrides(p, [_moving_in(0.0, speeds=(-0.05, 0.0), gap=30.0)], "trivial") == \
+        LaneChangeCounts(1, 1, 1)
+    assert responsibility_overrides(p, [_moving_in(-6.0, speeds=(0.3, 0.0), gap=30.0)], "trivial") == \
+        LaneChangeCounts(1, 1, 1)   # its recorded next speed, 0.3 - 0.6, is negative
