@@ -2,6 +2,7 @@
 ``NN_tracks.csv`` per recording ``NN``."""
 from __future__ import annotations
 
+import functools
 import re
 from pathlib import Path
 
@@ -15,7 +16,17 @@ def recording_files(folder: Path) -> dict[int, dict[str, Path]]:
 
     Two files of the same recording and kind (``1_tracks.csv`` and ``01_tracks.csv``) are refused,
     naming both: reading either would silently drop the other, reading both would count it twice.
+
+    A folder is listed once while it does not change (keyed by its path and modification time, which a file
+    added, removed or renamed moves): a replay asks for every recording's files, and listing a folder of 1,000
+    recordings each time made the replay quadratic. Read-only: callers must not change the answer.
     """
+    folder = Path(folder)
+    return _listing(str(folder.resolve()), folder.stat().st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=16)
+def _listing(folder: str, mtime_ns: int) -> dict[int, dict[str, Path]]:
     found: dict[int, dict[str, Path]] = {}
     for p in sorted(Path(folder).iterdir()):
         m = FILE_PATTERN.match(p.name)

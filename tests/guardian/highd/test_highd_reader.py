@@ -269,3 +269,23 @@ def test_frames_may_start_anywhere(generated, tmp_path):
     _edit(folder, "tracksMeta", lambda df: df.assign(initialFrame=(df["initialFrame"].astype(int) + 5000).astype(str),
                                                      finalFrame=(df["finalFrame"].astype(int) + 5000).astype(str)))
     assert read_recording(folder, 1).tracks["frame"].min() > 5000
+
+
+def test_a_folder_is_listed_once_while_it_does_not_change(generated, tmp_path, monkeypatch):
+    """A replay asks for every recording's files: the folder is listed once, not once per recording (which made a
+    replay of 1,000 recordings quadratic); a file added is seen at once."""
+    import os
+    from pathlib import Path
+
+    from guardian.highd import files
+
+    for name in os.listdir(generated):
+        shutil.copy(generated / name, tmp_path / name)
+    listed = []
+    real = Path.iterdir
+    monkeypatch.setattr(Path, "iterdir", lambda self: listed.append(self) or real(self))
+    first = files.recording_files(tmp_path)
+    assert all(files.recording_files(tmp_path) is first for _ in range(50)) and len(listed) == 1
+    shutil.copy(tmp_path / "01_tracks.csv", tmp_path / "07_tracks.csv")
+    os.utime(tmp_path, ns=(0, os.stat(tmp_path).st_mtime_ns + 1))   # whatever the clock's grain: the folder changed
+    assert 7 in files.recording_files(tmp_path) and len(listed) == 2
