@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from guardian.highd.reader import Recording, positions, track_order
+from guardian.errors import HighDFormatError
+from guardian.highd.reader import Recording, line_of, positions, track_order
 
 
 @dataclass
@@ -91,6 +92,7 @@ def to_itha(rec: Recording) -> ITHAData:
     order = track_order(t["id"].to_numpy(), t["frame"].to_numpy())
     if order is not None:  # HighD files come sorted by (id, frame); others are sorted here
         t = t.iloc[order].reset_index(drop=True)
+    where = _Place(rec, order)
     ids = t["id"].to_numpy()
     frames = t["frame"].to_numpy()
     direction = rec.tracks_meta["drivingDirection"].to_numpy()[positions(rec.tracks_meta["id"].to_numpy(), ids)]
@@ -105,8 +107,8 @@ def to_itha(rec: Recording) -> ITHAData:
     has_lead = (pre != 0) & (ids[lead_row] == pre) & (frames[lead_row] == frames)
     if np.any((pre != 0) & ~has_lead):
         r = int(np.flatnonzero((pre != 0) & ~has_lead)[0])
-        raise ValueError(f"recording {rec.id}: vehicle {ids[r]} at frame {frames[r]} follows vehicle {pre[r]}, "
-                         f"which has no row at that frame")
+        raise HighDFormatError(f"{where(r, 'precedingId')}: vehicle {ids[r]} at frame {frames[r]} follows vehicle "
+                               f"{pre[r]}, which has no row at that frame (recording {rec.id})")
     h = np.where(has_lead, s_rear[lead_row] - s_front, np.inf)
     vL = np.where(has_lead, v[lead_row], np.nan)
     nxt = np.arange(1, len(ids) + 1)
@@ -122,8 +124,21 @@ def to_itha(rec: Recording) -> ITHAData:
     shift = np.where(has_next, lane[nxt] - lane, 9)
     data = ITHAData(rec.id, fr, ids[has_next], frames[has_next], direction[has_next], lane[has_next],
                     v[has_next], h[has_next], vL[has_next], u[has_next], d[has_next])
-    data.lane_changes = _lane_changes(rec, ids, frames, direction, s_front, v, lane, w, shift, u)
+    data.lane_changes = _lane_changes(rec, ids, frames, direction, s_front, v, lane, w, shift, u, where)
     return data
+
+
+class _Place:
+    """Where sorted row ``r`` of a recording's tracks is in its file: ``path: line L, column 'C'``."""
+
+    def __init__(self, rec: Recording, order):
+        self.path, self.order = rec.paths.get("tracks"), order
+
+    def __call__(self, r: int, column: str) -> str:
+        if self.path is None:
+            return f"tracks row {r}, column {column!r}"
+        row = int(r if self.order is None else self.order[r])
+        return f"{self.path}: line {line_of(self.path, row)}, column {column!r}"
 
 
 def _rows_of(ids: np.ndarray, frames: np.ndarray, vehicle: np.ndarray) -> np.ndarray:
@@ -136,7 +151,7 @@ def _rows_of(ids: np.ndarray, frames: np.ndarray, vehicle: np.ndarray) -> np.nda
     return np.where((track >= 0) & (row >= 0) & (row < len(ids)), row, 0)
 
 
-def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift, u) -> list[LaneChange]:
+def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift, u, where) -> list[LaneChange]:
     events = np.flatnonzero((shift != 0) & (shift != 9))
     if not len(events):
         return []
@@ -147,8 +162,8 @@ def _lane_changes(rec, ids, frames, direction, s_front, v, lane, length, shift, 
     out = []
     for r in events:
         if abs(shift[r]) != 1:
-            raise ValueError(f"recording {rec.id}: vehicle {ids[r]} changes {shift[r]} lanes between frames "
-                             f"{frames[r]} and {frames[r] + 1}")
+            raise HighDFormatError(f"{where(r + 1, 'laneId')}: vehicle {ids[r]} changes {abs(shift[r])} lanes between "
+                                   f"frames {frames[r]} and {frames[r] + 1} (recording {rec.id})")
         k = group[r]
         rows = order[np.searchsorted(sorted_group, k, "left"):np.searchsorted(sorted_group, k, "right")]
         out.append(LaneChange(rec.id, int(ids[r]), int(frames[r]), int(np.flatnonzero(rows == r)[0]),

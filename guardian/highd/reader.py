@@ -45,7 +45,7 @@ class Recording:
         return list(range(n_up + 3, n_up + n_low + 3))
 
 
-def _line(path: Path, row_index) -> int:
+def line_of(path: Path, row_index) -> int:
     """The physical line (1-based) where data row ``row_index`` starts, as pandas numbers rows.
 
     pandas skips blank lines and lets quoted fields span lines, so row + 2 is not the line. The
@@ -102,7 +102,7 @@ def read_table(path: Path, schema: dict) -> pd.DataFrame:
             frac = np.flatnonzero(~_exact_integers(col))
             if len(frac):
                 r = frac[0]
-                raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {float(col[r]):g} is not an integer"
+                raise HighDFormatError(f"{path}: line {line_of(path, r)}, column {c!r}: {float(col[r]):g} is not an integer"
                                        + (f" of at most {MAX_EXACT_INT:.0f}" if col[r] == np.round(col[r]) else ""))
             df[c] = col.astype(np.int64)
     return df
@@ -203,7 +203,7 @@ def _locate_type_error(path: Path, schema: dict) -> None:
         if len(bad):
             r = bad[0]
             kind = "an integer" if t == INT else "a number"
-            raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {raw[c].iloc[r]!r} is not {kind}")
+            raise HighDFormatError(f"{path}: line {line_of(path, r)}, column {c!r}: {raw[c].iloc[r]!r} is not {kind}")
 
 
 def _check_missing(path: Path, df: pd.DataFrame, schema: dict) -> None:
@@ -220,7 +220,7 @@ def _check_missing(path: Path, df: pd.DataFrame, schema: dict) -> None:
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
             what = "missing value (NaN)" if pd.isna(col.iloc[r]) else f"non-finite value {float(col.iloc[r]):g}"
-            raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: {what}")
+            raise HighDFormatError(f"{path}: line {line_of(path, r)}, column {c!r}: {what}")
 
 
 def _markings(path: Path, value: str, column: str) -> list[float]:
@@ -301,7 +301,7 @@ def _check_plausibility(rec: Recording, direction: np.ndarray) -> None:
             bad = np.flatnonzero(np.abs(col) > bound)
             if len(bad):
                 r = bad[0]
-                raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: |{col[r]:g}| {what} exceeds "
+                raise HighDFormatError(f"{path}: line {line_of(path, r)}, column {c!r}: |{col[r]:g}| {what} exceeds "
                                        f"{bound:g} {what} {hint}")
     centre = (t["y"] + t["height"] / 2).to_numpy()
     margin = PLAUSIBILITY["outside_markings"]
@@ -309,7 +309,7 @@ def _check_plausibility(rec: Recording, direction: np.ndarray) -> None:
         bad = np.flatnonzero((direction == d) & ((centre < marks[0] - margin) | (centre > marks[-1] + margin)))
         if len(bad):
             r = bad[0]
-            raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'y': the box centre {centre[r]:.2f} m lies "
+            raise HighDFormatError(f"{path}: line {line_of(path, r)}, column 'y': the box centre {centre[r]:.2f} m lies "
                                    f"outside direction {d}'s lane markings [{marks[0]:g}, {marks[-1]:g}] by more than "
                                    f"{margin:g} m {hint}")
 
@@ -319,19 +319,19 @@ def _check_tracks_meta(path: Path, tmeta: pd.DataFrame) -> None:
     if dup.any():
         rows = np.flatnonzero(dup)
         raise HighDFormatError(f"{path}: id {int(tmeta['id'].iloc[rows[0]])} appears on lines "
-                               f"{[_line(path, r) for r in rows[:5]]}")
+                               f"{[line_of(path, r) for r in rows[:5]]}")
     bad = np.flatnonzero(~tmeta["drivingDirection"].isin([1, 2]).to_numpy())
     if len(bad):
         r = bad[0]
-        raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'drivingDirection': "
+        raise HighDFormatError(f"{path}: line {line_of(path, r)}, column 'drivingDirection': "
                                f"{int(tmeta['drivingDirection'].iloc[r])} is not 1 or 2")
     bad = np.flatnonzero((tmeta["width"] <= 0).to_numpy() | (tmeta["height"] <= 0).to_numpy())
     if len(bad):
-        raise HighDFormatError(f"{path}: line {_line(path, bad[0])}: vehicle size must be positive")
+        raise HighDFormatError(f"{path}: line {line_of(path, bad[0])}: vehicle size must be positive")
     bad = np.flatnonzero((tmeta["numFrames"] < 1).to_numpy())
     if len(bad):
         r = bad[0]
-        raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'numFrames': {int(tmeta['numFrames'].iloc[r])}; "
+        raise HighDFormatError(f"{path}: line {line_of(path, r)}, column 'numFrames': {int(tmeta['numFrames'].iloc[r])}; "
                                f"a vehicle has at least one frame")
 
 
@@ -374,12 +374,12 @@ def _check_tracks(path: Path, rec: Recording) -> np.ndarray:
     dup = np.flatnonzero(same & (sf[1:] == sf[:-1]))
     if len(dup):
         a, b = sorted((order[dup[0]], order[dup[0] + 1]))
-        raise HighDFormatError(f"{path}: (id {si[dup[0]]}, frame {sf[dup[0]]}) appears on lines {_line(path, a)} "
-                               f"and {_line(path, b)}")
+        raise HighDFormatError(f"{path}: (id {si[dup[0]]}, frame {sf[dup[0]]}) appears on lines {line_of(path, a)} "
+                               f"and {line_of(path, b)}")
     skip = np.flatnonzero(same & (sf[1:] - sf[:-1] != 1))
     if len(skip):
         k = skip[0]
-        raise HighDFormatError(f"{path}: line {_line(path, order[k + 1])}: track {si[k]} jumps from frame {sf[k]} "
+        raise HighDFormatError(f"{path}: line {line_of(path, order[k + 1])}: track {si[k]} jumps from frame {sf[k]} "
                                f"to frame {sf[k + 1]}")
     known = rec.tracks_meta.set_index("id")
     meta_ids = known.index.to_numpy()
@@ -387,7 +387,7 @@ def _check_tracks(path: Path, rec: Recording) -> np.ndarray:
     unknown = np.flatnonzero(meta_row < 0)
     if len(unknown):
         r = unknown[0]
-        raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'id': vehicle {ids[r]} is not in "
+        raise HighDFormatError(f"{path}: line {line_of(path, r)}, column 'id': vehicle {ids[r]} is not in "
                                f"{file_name(rec.id, 'tracksMeta')}")
     starts = np.flatnonzero(np.concatenate(([True], ~same)))  # each track's first row in (id, frame) order
     track_ids, lengths = si[starts], np.diff(np.append(starts, len(si)))
@@ -408,13 +408,13 @@ def _check_tracks(path: Path, rec: Recording) -> np.ndarray:
         bad = np.flatnonzero((direction == d) & ~ok)
         if len(bad):
             r = bad[0]
-            raise HighDFormatError(f"{path}: line {_line(path, r)}, column 'laneId': lane {lanes[r]} cannot hold vehicle "
+            raise HighDFormatError(f"{path}: line {line_of(path, r)}, column 'laneId': lane {lanes[r]} cannot hold vehicle "
                                    f"{ids[r]} (direction {d}); the markings give lanes {rec.lanes_of(d)}")
     for c in ("precedingId", "followingId"):
         col = t[c].to_numpy()
         bad = np.flatnonzero((col != 0) & (positions(meta_ids, col) < 0))
         if len(bad):
             r = bad[0]
-            raise HighDFormatError(f"{path}: line {_line(path, r)}, column {c!r}: vehicle {col[r]} is not in "
+            raise HighDFormatError(f"{path}: line {line_of(path, r)}, column {c!r}: vehicle {col[r]} is not in "
                                    f"{file_name(rec.id, 'tracksMeta')}")
     return direction

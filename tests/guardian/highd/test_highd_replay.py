@@ -2,6 +2,7 @@
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from guardian.highd.convert import to_itha
@@ -239,3 +240,34 @@ def test_speeds_outside_the_state_space_are_overrides_never_safe():
         LaneChangeCounts(1, 1, 1)
     assert responsibility_overrides(p, [_moving_in(-6.0, speeds=(0.3, 0.0), gap=30.0)], "trivial") == \
         LaneChangeCounts(1, 1, 1)   # its recorded next speed, 0.3 - 0.6, is negative
+
+
+def _first_lane_change(t):
+    """The row (in file order) where a vehicle's laneId first changes, and the change."""
+    changed = (t["id"] == t["id"].shift()) & (t["laneId"] != t["laneId"].shift())
+    row = int(np.flatnonzero(changed.to_numpy())[0])
+    return row, int(t["laneId"].iloc[row] - t["laneId"].iloc[row - 1])
+
+
+def test_consistency_refusals_name_the_file_line_and_column(folder, tmp_path):
+    """A vehicle that changes two lanes in one frame, and one that follows a vehicle with no row at that frame: refused
+    naming the tracks file, the line (header = line 1) and the column."""
+    from guardian.errors import HighDFormatError
+
+    def two_lanes(t):
+        row, step = _first_lane_change(t)
+        vid = t["id"].iloc[row]
+        later = (t["id"] == vid) & (t.index >= row)
+        t.loc[later, "laneId"] += step   # the change becomes two lanes
+        return t
+
+    def ghost_lead(t):
+        t.loc[5, "precedingId"] = 9999
+        return t
+
+    for change, line, column in ((two_lanes, None, "laneId"), (ghost_lead, 7, "precedingId")):
+        out = _copy_recording(folder, tmp_path / change.__name__, tracks=change)
+        if line is None:
+            line = _first_lane_change(pd.read_csv(folder / "01_tracks.csv"))[0] + 2
+        with pytest.raises(HighDFormatError, match=rf"01_tracks\.csv: line {line}, column '{column}'"):
+            to_itha(read_recording(out, 1, plausibility=False))
