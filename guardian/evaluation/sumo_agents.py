@@ -88,6 +88,10 @@ def sumo_driver(traci, vehicle: str, setting, road, rng: np.random.Generator):
         return None
 
     def drive(ego, others, time):
+        if isinstance(road, RoadMap) and road.on_branch(ego.x, ego.y) is not None:   # a ramp or an exit: follow it
+            plan["target"] = None
+            steer = road.lane_heading(ego.x, ego.y) - ego.heading
+            return acceleration(ego.speed), float(np.clip(steer, -STEER_LIMIT, STEER_LIMIT))
         slot = road.nearest_slot(ego.x, ego.y)
         target = plan["target"]
         if target is None or (target == slot and abs(ego.y - centre_y(road, slot)) < 0.2):

@@ -49,11 +49,7 @@ def _episode(env, rng, queue: bool = False) -> tuple:
     """The ego, full throttle, approaches a car that already backs towards it (``queue``: behind a car
     that backs up too, the nearer one by up to ``reverse_reach`` more); (crashed, start inside, metres the
     nearer car backed up)."""
-    env.reset(seed=int(rng.integers(1 << 30)))
-    base = env.unwrapped
-    ego = base.vehicle
-    ego.position = np.array([100.0, 0.0])
-    ego.heading, ego.speed = 0.0, float(rng.uniform(5.0, 20.0))
+    base, ego = _ego_at_start(env, rng)
     reach = GuardianConfig().reverse_reach
     fastest = -6.0 if queue else -2.5   # a queue backs up further: fast enough to pass one reach in the episode
     gap = float(rng.uniform(12.0, 42.0)) + reach * (2 if queue else 1)   # beyond the rear it keeps room behind
@@ -63,6 +59,21 @@ def _episode(env, rng, queue: bool = False) -> tuple:
     if queue:   # the same start, eased off less: it backs up at least as fast as its leader, never into it
         car.ease = speed ** 2 / (2 * (distance + float(rng.uniform(0.5, reach)) - abs(speed) * SIM_DT))
         base.road.vehicles.append(Reverser(base.road, [car.position[0] + car.LENGTH + 3.0, 0.0], speed, distance))
+    return _full_throttle(env, ego, car)
+
+
+def _ego_at_start(env, rng) -> tuple:
+    """A fresh episode with the ego at x = 100 m in lane 0, heading along, at 5-20 m/s; (the env's base, the ego)."""
+    env.reset(seed=int(rng.integers(1 << 30)))
+    base = env.unwrapped
+    ego = base.vehicle
+    ego.position = np.array([100.0, 0.0])
+    ego.heading, ego.speed = 0.0, float(rng.uniform(5.0, 20.0))
+    return base, ego
+
+
+def _full_throttle(env, ego, car) -> tuple:
+    """12 policy steps of full throttle, or until a crash; (crashed, start inside, metres ``car`` backed up)."""
     inside = env.starts_inside()[0]
     for _ in range(12):
         env.step(np.array([1.0, 0.0]))
@@ -75,20 +86,27 @@ def test_a_guarded_car_never_reaches_a_car_that_backs_up_within_the_reach():
     """A falsifier: random speeds, gaps and reversals of at most ``reverse_reach``; from every start inside the
     guardian's sets the ego, asking full throttle, never touches the reversing car. Without the cover
     (``reverse_reach = 0``: the car taken to stand where it is after the step) the same draws crash."""
-    rng = np.random.default_rng(7)
-    covered, bare = _highway(GuardianConfig()), _highway(GuardianConfig(reverse_reach=0.0))
+    inside_runs, crashes_bare = _falsify(_episode, GuardianConfig(reverse_reach=0.0), seed=7)
+    assert inside_runs >= 15 and crashes_bare > 0
+
+
+def _falsify(episode, weaker: GuardianConfig, seed: int, draws: int = 30) -> tuple:
+    """``draws`` episodes with the default cover (no contact from a start inside, no reversal beyond the reach),
+    each drawn again with ``weaker``; (starts inside, contacts from a start inside with ``weaker``)."""
+    rng = np.random.default_rng(seed)
+    covered, bare = _highway(GuardianConfig()), _highway(weaker)
     inside_runs = crashes_bare = 0
-    for _ in range(30):
+    for _ in range(draws):
         state = rng.bit_generator.state
-        crashed, inside, backed = _episode(covered, rng)
+        crashed, inside, backed = episode(covered, rng)
         assert backed <= GuardianConfig().reverse_reach
         if inside:
             inside_runs += 1
             assert not crashed
         rng.bit_generator.state = state
-        crashed, inside, _ = _episode(bare, rng)
+        crashed, inside, _ = episode(bare, rng)
         crashes_bare += crashed and inside
-    assert inside_runs >= 15 and crashes_bare > 0
+    return inside_runs, crashes_bare
 
 
 class Creeper(Vehicle):
@@ -114,22 +132,13 @@ class Creeper(Vehicle):
 def _creeping_episode(env, rng) -> tuple:
     """The ego, full throttle, approaches a car creeping forward that brakes into reverse at once; (crashed,
     start inside, metres the car backed up)."""
-    env.reset(seed=int(rng.integers(1 << 30)))
-    base = env.unwrapped
-    ego = base.vehicle
-    ego.position = np.array([100.0, 0.0])
-    ego.heading, ego.speed = 0.0, float(rng.uniform(5.0, 20.0))
+    base, ego = _ego_at_start(env, rng)
     reach = GuardianConfig().reverse_reach
     gap = float(rng.uniform(12.0, 42.0)) + reach
     car = Creeper(base.road, [ego.position[0] + ego.LENGTH + gap, 0.0], float(rng.uniform(0.1, 5.9)),
                   float(rng.uniform(0.5, 3.0)), float(rng.uniform(2.0, reach)))
     base.road.vehicles = [ego, car]
-    inside = env.starts_inside()[0]
-    for _ in range(12):
-        env.step(np.array([1.0, 0.0]))
-        if ego.crashed:
-            break
-    return ego.crashed, inside, car.backed
+    return _full_throttle(env, ego, car)
 
 
 def test_a_guarded_car_never_reaches_a_creeping_car_that_brakes_into_reverse():
@@ -137,19 +146,7 @@ def test_a_guarded_car_never_reaches_a_creeping_car_that_brakes_into_reverse():
     into reverse and backs up at most ``reverse_reach``; from every start inside the ego, asking full throttle,
     never touches it. With the cover only for cars seen driving backwards (``reverse_horizon = 0``, as highway-env
     seed 41 of LineHuggingIDM found: a car seen at 0.73 m/s backed 2.8 m into the guarded car) the draws crash."""
-    rng = np.random.default_rng(5)
-    covered, late = _highway(GuardianConfig()), _highway(GuardianConfig(reverse_horizon=0.0))
-    inside_runs = crashes_late = 0
-    for _ in range(30):
-        state = rng.bit_generator.state
-        crashed, inside, backed = _creeping_episode(covered, rng)
-        assert backed <= GuardianConfig().reverse_reach
-        if inside:
-            inside_runs += 1
-            assert not crashed
-        rng.bit_generator.state = state
-        crashed, inside, _ = _creeping_episode(late, rng)
-        crashes_late += crashed and inside
+    inside_runs, crashes_late = _falsify(_creeping_episode, GuardianConfig(reverse_horizon=0.0), seed=5)
     assert inside_runs >= 15 and crashes_late > 0
 
 
