@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 from guardian.errors import ConfigError
 from guardian.model.reversing import ReversingCover
@@ -88,7 +89,7 @@ class GuardianConfig:
         if self.horizon < 1 or self.start_attempts < 1:
             raise ConfigError("GuardianConfig.horizon and start_attempts must be at least 1")
 
-    @property
+    @cached_property
     def reversing(self) -> ReversingCover:
         """The cover for traffic that drives backwards (``reverse_reach``, ``reverse_horizon``)."""
         return ReversingCover(self.reverse_reach, self.traffic_accel * self.reverse_horizon)

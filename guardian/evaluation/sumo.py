@@ -141,7 +141,7 @@ class _Episode:
             if ask is not None and self.guarded:
                 guard = ask(guard, self.frame.road)
             own = rng if single else np.random.default_rng([int(rng.integers(1 << 31))])  # one driver each
-            driver = agent_of(agent, setting, own, traci=traci, vehicle=name, road=self.frame.road)
+            driver = agent_of(agent, setting, own, traci=traci, vehicle=name, frame=self.frame)
             self.cars.append(Guarded(name, guard, driver, self.frame.body(traci, name).x))
         t0 = traci.simulation.getTime()
         if self.recorder is not None:

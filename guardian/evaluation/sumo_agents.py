@@ -23,13 +23,13 @@ LEADER_RANGE = 200.0                       # [m] how far ahead SUMO's driver loo
 STEER_LIMIT = 0.1                          # [rad] the lane keeper's largest steering
 
 
-def agent_of(name: str, setting, rng: np.random.Generator, traci=None, vehicle: str | None = None, road=None):
+def agent_of(name: str, setting, rng: np.random.Generator, traci=None, vehicle: str | None = None, frame=None):
     """A driver proposing ``[acceleration, steering]``; ``setting`` (a ``SumoSetting``) gives its bounds. ``sumo``
-    needs the connection, the guarded vehicle's id and the road model (``traci``, ``vehicle``, ``road``)."""
+    needs the connection, the guarded vehicle's id and the road's ``Frame`` (``traci``, ``vehicle``, ``frame``)."""
     if name not in AGENTS:
         raise ConfigError(f"agent must be one of {', '.join(AGENTS)}, got {name!r}")
     if name == "sumo":
-        return sumo_driver(traci, vehicle, setting, road, rng)
+        return sumo_driver(traci, vehicle, setting, frame, rng)
     amax, smax = setting.traffic.emergency_decel, setting.max_steering
     held = {"u": (0.0, 0.0), "left": 0}
 
@@ -54,7 +54,7 @@ def agent_of(name: str, setting, rng: np.random.Generator, traci=None, vehicle: 
     return {"random": random_agent, "reckless": reckless, "seek": seek}[name]
 
 
-def sumo_driver(traci, vehicle: str, setting, road, rng: np.random.Generator):
+def sumo_driver(traci, vehicle: str, setting, frame, rng: np.random.Generator):
     """SUMO's own driver with its checks off, driving guarded vehicle ``vehicle`` (given the traffic's vehicle type:
     its car-following and lane-change models and parameters, without dawdling).
 
@@ -64,8 +64,9 @@ def sumo_driver(traci, vehicle: str, setting, road, rng: np.random.Generator):
     (LC2013, or SL2015 with sublanes) wants one (``vehicle.getLaneChangeState``: left or right, for a strategic,
     cooperative, speed-gain or keep-right reason), **blocked or not**: the gap checks SUMO makes before it changes
     lanes are off. A lane keeper steers towards the target lane's centre line."""
-    if traci is None or vehicle is None or road is None:
-        raise ConfigError("the sumo agent drives a vehicle in a running SUMO: give traci, vehicle and road")
+    if traci is None or vehicle is None or frame is None:
+        raise ConfigError("the sumo agent drives a vehicle in a running SUMO: give traci, vehicle and frame")
+    road = frame.road
     t, dt, amax = setting.traffic, setting.step_length, setting.traffic.emergency_decel
     traci.vehicle.setType(vehicle, DRIVER_TYPE)
     desired = t.max_speed * float(np.clip(rng.normal(1.0, t.speed_factor_dev), 0.8, 1.2))
@@ -83,7 +84,7 @@ def sumo_driver(traci, vehicle: str, setting, road, rng: np.random.Generator):
     def wished(slot: int, x: float):
         for direction, bit, side in ((1, LCA_LEFT, -1), (-1, LCA_RIGHT, 1)):   # slots count from the left
             state = traci.vehicle.getLaneChangeState(vehicle, direction)[0]
-            if state & bit and state & LCA_WISHES and lane_exists(road, slot + side, x):
+            if state & bit and state & LCA_WISHES and frame.on_corridor(slot + side, x):
                 return slot + side
         return None
 
@@ -94,21 +95,12 @@ def sumo_driver(traci, vehicle: str, setting, road, rng: np.random.Generator):
             return acceleration(ego.speed), float(np.clip(steer, -STEER_LIMIT, STEER_LIMIT))
         slot = road.nearest_slot(ego.x, ego.y)
         target = plan["target"]
-        if target is None or (target == slot and abs(ego.y - centre_y(road, slot)) < 0.2):
+        if target is None or (target == slot and abs(ego.y - frame.centre_y(slot)) < 0.2):
             target = plan["target"] = wished(slot, ego.x)
-        y_goal = centre_y(road, slot if target is None else target)
+        y_goal = frame.centre_y(slot if target is None else target)
         heading_goal = math.atan2(y_goal - ego.y, max(15.0, 2.0 * ego.speed))
         steer = float(np.clip(heading_goal - ego.heading, -STEER_LIMIT, STEER_LIMIT))
         return acceleration(ego.speed), steer
 
     return drive
 
-
-def centre_y(road, slot: int) -> float:
-    return road.slot_y(slot) if isinstance(road, RoadMap) else slot * road.lane_width
-
-
-def lane_exists(road, slot: int, x: float) -> bool:
-    if isinstance(road, RoadMap):
-        return 0 <= slot < road.n_lanes and road.slot_at(slot, x)
-    return 0 <= slot < road.n_lanes

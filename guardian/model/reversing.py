@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class ReversingCover:
@@ -23,11 +25,15 @@ class ReversingCover:
     reach: float
     below: float = 0.0
 
+    def __post_init__(self):
+        if not self.below >= 0:   # a car driving backwards is always covered: speed < 0 <= below
+            raise ValueError(f"ReversingCover.below must be >= 0, got {self.below!r}")
+
     def may_reverse(self, speed: float) -> bool:
-        return speed < self.below or speed < 0
+        return speed < self.below
 
     def any_may(self, speeds) -> bool:
-        return any(self.may_reverse(float(s)) for s in speeds)
+        return bool(np.any(np.asarray(speeds, dtype=float) < self.below))
 
     def reaches(self, fronts, speeds, lanes) -> list:
         """How far each car may still back up: 0 for a car that may not reverse; ``reach`` for one that may,

@@ -450,7 +450,7 @@ def _sumo_driver_beside_a_blocker(steps: int = 12):
             for vid in ("slow", "beside"):
                 traci.vehicle.setLaneChangeMode(vid, 0)
             traci.vehicle.setSpeed("slow", 10.0)
-            drive = agent_of("sumo", setting, np.random.default_rng(0), traci=traci, vehicle="guarded", road=frame.road)
+            drive = agent_of("sumo", setting, np.random.default_rng(0), traci=traci, vehicle="guarded", frame=frame)
             model, out = BicycleModel(setting.ego_length, setting.step_length), []
             for k in range(steps):
                 me = frame.body(traci, "guarded")
