@@ -13,7 +13,7 @@ COLUMNS = (("episodes", "episodes"), ("steps", "steps"), ("collisions", "collisi
            ("override_steps", "override steps"), ("conflict_steps", "conflict steps"),
            ("unchecked_entries", "unchecked entries"), ("reversing_steps", "reversing steps"),
            ("unsupervised_steps", "unsupervised"), ("traffic_reversing_uncovered_steps", "uncovered reversals"),
-           ("exceptions", "exceptions"))
+           ("episodes_cut", "cut at the time cap"), ("exceptions", "exceptions"))
 
 
 def table(rows: list, title: str) -> str:

@@ -18,7 +18,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from guardian.cli.common import (Parser, count, emit, intention_name, json_option, library_options, load_library,
-                                 output_file, output_folder, progress_bar, usage_error)
+                                 output_file, output_folder, positive_number, progress_bar, usage_error)
+from guardian.evaluation import MAX_SECONDS
 
 OVERTAKE_ONLY = ("intention", "disturbance", "no_intention", "horizon")
 
@@ -68,7 +69,8 @@ def cmd_rollout(args) -> int:
                           resample_unsafe_start=args.safe_start)
     spec = Rollout(args.env, "", action=args.action, guarded=not args.no_guardian, config=gcfg,
                    intention=intentions[0], disturbance=args.disturbance, traffic=args.traffic,
-                   controlled=args.controlled, env_config=env_config, policy_algo=args.algo)
+                   controlled=args.controlled, env_config=env_config, policy_algo=args.algo,
+                   max_seconds=args.max_seconds)
     try:  # every key the rollout sets itself, checked before the sets are loaded
         highway_env_config(spec)
         if overtake:
@@ -351,6 +353,9 @@ def add_commands(sub) -> None:
     p.add_argument("--first-episode", type=count(0), default=0, metavar="I",
                    help="start at episode I of the seeding rule (env seed SEED+I, agent rng [SEED, I]): "
                         "replays episode I of a longer run alone")
+    p.add_argument("--max-seconds", type=positive_number, default=MAX_SECONDS, metavar="S",
+                   help=f"stop an episode the env has not ended after S simulated seconds and count it as cut "
+                        f"(episodes_cut; merge-v0 never ends one itself; default {MAX_SECONDS:g})")
     p.add_argument("--no-guardian", action="store_true", help="drive without supervision")
     p.add_argument("--no-intention", action="store_true",
                    help="keep the guardian but pin it to the bounded-velocity set; overtake scenarios")

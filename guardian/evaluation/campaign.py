@@ -67,7 +67,7 @@ MULTI_AGENTS = ("random", "reckless", "merge")
 COUNTED = ("collisions", "ego_at_fault_collisions", "starts_outside", "collisions_after_outside_starts",
            "ego_at_fault_after_outside_starts", "safety_violations", "failsafe_steps", "conflict_steps",
            "unchecked_entries", "reversing_steps", "unsupervised_steps", "traffic_reversing_uncovered_steps",
-           "override_steps", "steps")
+           "override_steps", "steps", "episodes_cut")
 
 
 @dataclass(frozen=True)
@@ -210,7 +210,7 @@ class Campaign:
                 self.failures.append({"kind": "at-fault collision" if crash["start_inside"] and blamed
                                       else "collision after a start outside", "fault": crash["fault"],
                                       "rule": crash["rule"], "cell": cell.setting, "replay": cell.replay(seed)})
-        for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps"):
+        for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps", "episodes_cut"):
             if r.get(k):
                 self.failures.append({"kind": k, "count": r[k], "cell": cell.setting, "replay": cell.replay(seed)})
         if cell.env == OVERTAKE_ENV and r.get("safety_violations"):

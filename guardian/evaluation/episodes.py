@@ -15,13 +15,16 @@ class Observer:
 
     def after_step(self, env, obs, action, info: dict) -> None: ...
 
+    def cut_episode(self, env, episode: int) -> None:
+        """The episode reached the rollout's time cap before the env ended it, and was stopped there."""
+
     def end_episode(self, env, episode: int) -> None: ...
 
     def close(self) -> None: ...
 
 
 def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=None, algo: str | None = None,
-                 first: int = 0) -> None:
+                 first: int = 0, max_seconds: float | None = None) -> None:
     """The rollout loop: ``episodes`` seeded episodes of ``agent`` on ``env``.
 
     Parameters
@@ -40,6 +43,10 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
         ``progress(done, total)`` after each episode.
     first : int
         Run episodes ``first .. first + episodes - 1`` of the rule: episode i of a longer run, alone.
+    max_seconds : float, optional
+        Stop an episode the env has not ended once its simulated time (``env.unwrapped.time``) reaches this;
+        observers hear ``cut_episode`` first. Some envs never end an episode themselves (``merge-v0``): a
+        guardian that holds its car forever would hang the run.
     """
     try:
         for ep in range(first, first + episodes):
@@ -56,6 +63,10 @@ def run_episodes(env, agent: str, episodes: int, seed: int, observers, progress=
                 for o in observers:
                     o.after_step(env, obs, action, info)
                 done = terminated or truncated
+                if not done and max_seconds is not None and env.unwrapped.time >= max_seconds - 1e-9:
+                    for o in observers:
+                        o.cut_episode(env, ep)
+                    done = True
             for o in observers:
                 o.end_episode(env, ep)
             if progress:

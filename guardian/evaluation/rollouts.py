@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from guardian.config import GuardianConfig
 from guardian.errors import ConfigClash, ConfigError
+from guardian.evaluation import MAX_SECONDS
 from guardian.evaluation.episodes import run_episodes
 from guardian.evaluation.tally import HighwayTally
 
@@ -53,6 +54,10 @@ class Rollout:
         Further env config; a key that a field above sets is refused (``ConfigClash``).
     policy_algo : str, optional
         The algorithm of a ``policy:PATH`` agent (default: read from the file).
+    max_seconds : float, optional
+        An episode the env has not ended by this simulated time is stopped and counted as cut
+        (``episodes_cut``): ``merge-v0`` never ends an episode itself (its config's ``duration`` is not used).
+        None: no cap.
     """
 
     env_id: str
@@ -67,6 +72,7 @@ class Rollout:
     controlled: int | None = None
     env_config: dict = field(default_factory=dict)
     policy_algo: str | None = None
+    max_seconds: float | None = MAX_SECONDS
 
     @property
     def overtake(self) -> bool:
@@ -189,7 +195,8 @@ def highway_rollouts(r: Rollout, episodes: int, seed: int, first_episode: int = 
         from guardian.recording.rerun import GuardianRecorder
         recorder = GuardianRecorder(rerun_path)
     tally = HighwayTally(env, r.guarded, r.config, r.library, recorder)
-    run_episodes(env, r.agent, episodes, seed, [tally], progress, algo=r.policy_algo, first=first_episode)
+    run_episodes(env, r.agent, episodes, seed, [tally], progress, algo=r.policy_algo, first=first_episode,
+                 max_seconds=r.max_seconds)
     return tally.result(episodes)
 
 

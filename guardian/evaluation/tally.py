@@ -23,7 +23,8 @@ COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_
           "model_violation_steps", "traffic_model_violation_steps", "traffic_blind_steps",
           "traffic_reversing_uncovered_steps", "follower_dropped_steps",
           "conflict_steps",
-          "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments")
+          "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments",
+          "episodes_cut")
 MULTI_COUNTS = ("guarded_pair_collisions", "merges", "on_ending_lane")
 CAR_COUNTS = ("collisions", "at_fault_collisions", "lane_changes", "override_steps", "refused_lane_changes",
               "merges", "on_ending_lane")
@@ -56,6 +57,7 @@ class HighwayTally(Observer):
             self._watch_the_lead(env)
         self.totals = {k: 0 for k in COUNTS}
         self.totals["crashes"] = []
+        self.totals["cut_episodes"] = []
         if self.overtake:
             self.totals.update(wrong_identifications=0, safe_set_exits=0, collisions_after_safe_set_exit=0,
                                ego_at_fault_after_safe_set_exit=0, lead_departures=0)
@@ -208,6 +210,10 @@ class HighwayTally(Observer):
                 self.per_car[blamed]["at_fault_collisions"] += 1
         totals["crashes"].append(row)
 
+    def cut_episode(self, env, episode) -> None:
+        self.totals["episodes_cut"] += 1
+        self.totals["cut_episodes"].append(episode)
+
     def end_episode(self, env, episode) -> None:
         base = env.unwrapped
         if self.estimator is not None and self.estimator.identified_at is not None:
@@ -273,6 +279,9 @@ class HighwayTally(Observer):
           and guarded car. With several guarded cars every per-step count is summed over the cars.
         * On roads beyond one straight segment: ``on_ending_lane``: guarded cars that began an episode on a
           lane that ends (an on-ramp's); ``merges``: those of them on a lane that goes on at the episode's end.
+        * ``episodes_cut``: episodes the env had not ended (no crash, no time limit) when the rollout's time cap
+          (``Rollout.max_seconds``) stopped them; ``cut_episodes`` lists them. What would have happened after
+          the cap is not seen: a cut episode is never counted as safe, it is counted apart.
         * With several controlled cars: ``guarded_cars``, ``guarded_pair_collisions`` (crashes between two
           guarded cars) and ``agents``: per car (in highway-env's controlled order) its collisions,
           at-fault collisions, lane changes, overrides, refusals, merges and mean distance.
@@ -285,7 +294,8 @@ class HighwayTally(Observer):
                 totals[k] = None
             if not self.overtake:
                 totals["model_violation_steps"] = None
-            for k in ("unchecked_entries", "unsupervised_steps", "reattachments"):
+            for k in ("unchecked_entries", "unsupervised_steps", "reattachments",
+          "episodes_cut"):
                 totals[k] = None
         if self.guardian:
             totals["traffic_model_worst"] = {k: round(v, 6) for k, v in self.monitor_worst.items()}

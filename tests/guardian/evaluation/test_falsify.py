@@ -166,3 +166,12 @@ def test_the_docs_name_the_agent_choices_and_the_agents_refused():
     choices = _falsify_agent_choices()
     assert named(driven) == choices
     assert named(refused) == set(AGENTS) - choices - {"all"}
+
+
+def test_an_episode_cut_at_the_time_cap_is_counted_and_listed_with_its_command():
+    cell = Cell("merge-v0", "random", "meta", "own config")
+    camp = Campaign()
+    camp.add(cell, 7, {"crashes": [], "episodes_cut": 1, "steps": 300})
+    assert camp.table("all")[0]["episodes_cut"] == 1
+    assert [f["kind"] for f in camp.failures] == ["episodes_cut"]
+    assert "--seed 7" in replay_command(camp.failures[0]["replay"])

@@ -34,3 +34,17 @@ def test_crashes_after_a_safe_set_exit_are_counted_and_marked(traffic_library):
     ended = highway_rollouts(Rollout("guardian/HighwayOvertake-v0", "bad", guarded=False, library=traffic_library,
                                      env_config=departure), 3, 0)
     assert ended["safe_set_exits"] == 3 and ended["collisions"] == 0
+
+
+def test_an_episode_the_env_does_not_end_is_cut_at_the_time_cap_and_counted():
+    """merge-v0 never ends an episode by time, so a car the guardian holds would hang a run: the rollout stops
+    an episode at ``max_seconds`` of simulated time and counts it cut. Here the env's own limit (40 s) lies
+    beyond a 3 s cap: every episode without a crash is cut, after 3 policy steps, and listed."""
+    r = highway_rollouts(Rollout("highway-fast-v0", "random", action="meta", env_config={"duration": 40},
+                                 max_seconds=3.0), 4, 0)
+    crashed = {c["episode"] for c in r["crashes"]}
+    assert r["episodes_cut"] == 4 - len(crashed) > 0
+    assert set(r["cut_episodes"]) == set(range(4)) - crashed
+    assert r["steps"] <= 3 * 4
+    uncapped = highway_rollouts(Rollout("highway-fast-v0", "random", action="meta", env_config={"duration": 3}), 4, 0)
+    assert uncapped["episodes_cut"] == 0 and uncapped["steps"] == r["steps"]
