@@ -24,7 +24,9 @@ Which cars "can" lead or follow depends on ``ρ̂``:
   Cars that take no part in the order (``silent``: traffic that announces nothing,
   such as highway-env's IDM cars) are over-approximated as ``trivial`` does: they
   may be in their lane or a neighbouring one at t+1, and each may be the one that
-  leads, follows or leaves, up to the nearest car that takes part.
+  leads, follows or leaves, up to the nearest car that takes part. Where bodies of
+  different lengths overlap along the road, a car that takes part hides only the
+  cars wholly beyond it: the others may still be met first and count as well.
 
 The road (global and local states, resolution) is ``itha.road``.
 """
@@ -111,20 +113,21 @@ class EgoSupervisor:
                 return abs(lane[k] - ln) <= 1
             return lane[k] == ln  # later cars yield: they stay as far as E is concerned
 
-        def nearest(cands, key):
-            """Ordered ρ̂: the candidates that can be the one, nearest first: each silent car may be
-            elsewhere at t+1, so the candidates up to the nearest car that takes part in the order."""
-            out = []
-            for k in sorted(cands, key=key):
-                out.append(k)
-                if k not in silent:
-                    break
-            return out
+        def unhidden(cands, ahead: bool):
+            """Ordered ρ̂: the candidates that can be the one the ego meets first. A car that takes part in
+            the order is where it says at t+1 and hides every candidate wholly beyond it along the road (ahead:
+            its front at or behind the candidate's rear; behind: its rear at or ahead of the candidate's front);
+            a silent car may be elsewhere and hides none. Without overlapping bodies: the candidates up to the
+            nearest car that takes part."""
+            sure = [j for j in cands if j not in silent]
+            if ahead:
+                return [k for k in cands if not any(j != k and pn[j] <= pn[k] - lengths[k] for j in sure)]
+            return [k for k in cands if not any(j != k and pn[j] - lengths[j] >= pn[k] for j in sure)]
 
         # 1. the ego's own reset: every car that can lead it in the target lane.
         leads = [k for k in range(n) if k != ego and pn[k] >= pn[ego] and may_be_in(k, target)]
         if not trivial:
-            leads = nearest(leads, lambda k: pn[k])
+            leads = unhidden(leads, ahead=True)
         for k in leads:
             speeds = self.S.speed_intervals(pn[k] - lengths[k] - pn[ego], float(cf.worst_lead_speed(v[k])))
             allowed = intersect_intervals(allowed, speeds)
@@ -133,7 +136,7 @@ class EgoSupervisor:
         # 2. cars that can get the ego as leader: in the target lane behind it at t+1.
         followers = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, target)]
         if not trivial:
-            followers = nearest(followers, lambda k: -pn[k])
+            followers = unhidden(followers, ahead=False)
         So, co = self.S_others, self.S_others.params
         for k in followers:
             v_fast = min(v[k] + dt * co.u_max, co.v_max)
@@ -144,12 +147,12 @@ class EgoSupervisor:
         old = lane[ego]
         behind = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, old)]
         if not trivial:
-            behind = nearest(behind, lambda k: -pn[k])
+            behind = unhidden(behind, ahead=False)
         for c in behind:
             v_fast = min(v[c] + dt * co.u_max, co.v_max)
             new_leads = [k for k in range(n) if k not in (ego, c) and pn[k] >= pn[ego] and may_be_in(k, old)]
             if not trivial:
-                new_leads = nearest(new_leads, lambda k: pn[k])
+                new_leads = unhidden(new_leads, ahead=True)
             for k in new_leads:
                 x = (v_fast, pn[k] - lengths[k] - pn[c], float(co.worst_lead_speed(v[k])))
                 if not So.contains(np.array([x]))[0]:

@@ -7,11 +7,12 @@ speed*, so that each ego kinematics (``guardian.decide.kinematics``) converts th
 own input exactly:
 
 * ``self_safe_speeds``: next speeds keeping the ego in the car-following RCIS with
-  respect to the nearest car ahead in every lane it occupies (7.4); towards a car *at risk*
+  respect to the nearest car ahead in every lane it occupies (7.4), and to every car ahead whose body
+  overlaps that car's along the road (``Scene.leaders``); towards a car *at risk*
   (``at_risk``: it has crashed, or it may crash into the car it follows) the ego keeps to where
   it can stop behind that car standing still after this step, ``wreck_margin`` further back;
 * ``follower_speeds``: next speeds keeping the nearest car behind in a lane the ego
-  is entering in its RCIS whatever that car does (the ego answers for it while the
+  is entering (and any car behind whose body overlaps it along the road) in its RCIS whatever that car does (the ego answers for it while the
   entry lasts, as a reset does in ITHA);
 * ``entry``: whether entering a lane is ρ̂-responsible (Definition 22, via
   ``itha.responsibility.EgoSupervisor``), with the next speeds that make it so.
@@ -25,7 +26,7 @@ runs into the car it follows stops faster (highway-env takes a crashed car's spe
 HighwayOvertake's traffic stops at once) and is pushed back by the impact. The traffic model does not
 say the other cars stay out of each other, so the guardian flags the cars that might not
 (``at_risk``) and treats each as able to stop at once: a crashed car; a car outside the
-car-following set behind the car it follows in some lane; a car that cannot stop behind a car at
+car-following set behind a car it follows in some lane (``Scene.leads_of``); a car that cannot stop behind a car at
 risk (the same rule, one car further back). A car that follows safely a car that is not at risk
 is trusted to stay out of it: what remains (a car inside its set that brakes too late) is counted as
 the traffic model violation it is.
@@ -78,12 +79,6 @@ class TrafficSupervisor:
     def _speed_range(self) -> list:
         return [(0.0, self.params.v_max)]
 
-    def leader(self, scene: Scene, lane: int):
-        return scene.leader(lane)
-
-    def follower(self, scene: Scene, lane: int):
-        return scene.follower(lane)
-
     def self_safe_speeds(self, scene: Scene) -> tuple[list, str]:
         """Next ego speeds that are self-safe (7.4) against the nearest car ahead in each occupied lane."""
         allowed = self._speed_range()
@@ -96,17 +91,13 @@ class TrafficSupervisor:
         return allowed, ""
 
     def leader_speeds(self, scene: Scene) -> list:
-        """``[(lane, car, next ego speeds self-safe towards it), ...]`` for the nearest car ahead in each
-        lane the ego occupies (the parts of ``self_safe_speeds``, to say which car limits the ego), and for the
-        car whose rear is nearest when bodies ahead overlap along the road and that is another car."""
+        """``[(lane, car, next ego speeds self-safe towards it), ...]`` for each car ahead that no other car
+        hides in each lane the ego occupies (``Scene.leaders``: the nearest, and any whose body overlaps it
+        along the road): the parts of ``self_safe_speeds``, to say which car limits the ego."""
         p, ego = self.params, scene.ego
         out = []
         for lane in sorted(ego.lanes):
-            car = self.leader(scene, lane)
-            if car is None:
-                continue
-            nearest = scene.nearest_rear_ahead(lane)
-            for c in (car,) if nearest is car else (car, nearest):
+            for c in scene.leaders(lane):
                 h_next = _gap_after_step(p, ego, c)
                 if self.at_risk(scene, c):  # it may stand still from its next position on, pushed back
                     out.append((lane, c, self.S.speed_intervals(h_next - self.wreck_margin, 0.0)))
@@ -135,9 +126,14 @@ class TrafficSupervisor:
         if not 0 <= car.speed <= p.v_max:
             return f"{name} drives at {car.speed:.2f} m/s, outside the traffic model's [0, {p.v_max:g}] m/s"
         for lane in sorted(car.lanes):
-            lead = scene.ahead_of(car, lane)
-            if lead is None:
-                continue
+            why = self._why_not_following(scene, car, lane)
+            if why:
+                return why
+        return ""
+
+    def _why_not_following(self, scene: Scene, car: Car, lane: int) -> str:
+        p, name = self.others, car.name or "the car"
+        for lead in scene.leads_of(car, lane):
             if self.at_risk(scene, lead):
                 h_next = _gap_after_step(p, car, lead) - self.wreck_margin
                 v_next = max(p.next_speed(car.speed, p.u_min), 0.0)
@@ -148,19 +144,21 @@ class TrafficSupervisor:
         return ""
 
     def follower_speeds(self, scene: Scene, lane: int, ego_progress_min: float | None = None) -> tuple[list, str]:
-        """Next ego speeds keeping the nearest car behind in ``lane`` in its RCIS, whatever it does.
+        """Next ego speeds keeping each car behind in ``lane`` that no other hides (``Scene.followers``: the
+        nearest, and any whose body overlaps it along the road) in its RCIS, whatever it does.
 
         ``ego_progress_min`` is the least distance the ego covers this step (default ``dt v``).
         """
         p, ego = self.others, scene.ego
-        car = self.follower(scene, lane)
-        if car is None:
-            return self._speed_range(), ""
+        speeds = self._speed_range()
         progress = p.dt * ego.speed if ego_progress_min is None else ego_progress_min
-        gap = (ego.front + progress) - ego.length - (car.front + p.dt * car.speed)
-        v_fast = min(car.speed + p.dt * p.u_max, p.v_max)
-        speeds = self.S_others.lead_speed_intervals(v_fast, gap)
-        return speeds, "" if speeds else f"{car.name or 'the car'} behind in lane {lane} cannot stay safe"
+        for car in scene.followers(lane):
+            gap = (ego.front + progress) - ego.length - (car.front + p.dt * car.speed)
+            v_fast = min(car.speed + p.dt * p.u_max, p.v_max)
+            speeds = intersect_intervals(speeds, self.S_others.lead_speed_intervals(v_fast, gap))
+            if not speeds:
+                return [], f"{car.name or 'the car'} behind in lane {lane} cannot stay safe"
+        return speeds, ""
 
     def entry(self, scene: Scene, lane: int) -> EntryVerdict:
         """Is entering ``lane`` from the ego's (single) current lane ρ̂-responsible (7.5)?"""
@@ -172,10 +170,11 @@ class TrafficSupervisor:
             return EntryVerdict(lane, False, [], "no such lane")
         if abs(lane - home) != 1:
             raise ValueError(f"lane {lane} is not next to lane {home}")
-        follower = scene.follower(lane)
-        if follower is not None and follower.blind:
-            return EntryVerdict(lane, False, [], f"{follower.name} behind in lane {lane} does not see the ego "
-                                                 f"(highway-env's v0 search ends at its lane segment): it would not brake")
+        for follower in scene.followers(lane):
+            if follower.blind:
+                return EntryVerdict(lane, False, [], f"{follower.name} behind in lane {lane} does not see the ego "
+                                                     f"(highway-env's v0 search ends at its lane segment): it would "
+                                                     f"not brake")
         p, v, ln, lengths = [ego.front], [min(ego.speed, self.params.v_max)], [home], [ego.length]
         silent = set()
         for c in scene.others:

@@ -53,14 +53,35 @@ class Scene:
         """The nearest car in ``lane`` whose front is behind the ego's (None if there is none)."""
         return self._neighbours(lane)[1]
 
-    def nearest_rear_ahead(self, lane: int):
-        """Of the cars in ``lane`` whose front is at or ahead of the ego's, the one whose rear is nearest (None if
-        there is none). It is the leader unless bodies ahead overlap along the road: a car standing with its front
-        just past a lane's end (a standing car of length 0), a wreck, a long car straddling into the lane."""
-        cache = self.__dict__.setdefault("_rear_ahead", {})
+    def leaders(self, lane: int) -> tuple:
+        """The cars ahead in ``lane`` (front at or ahead of the ego's) that no other car ahead hides: the
+        leader first, then every car whose rear is nearer than the leader's front. A car whose rear lies at or
+        beyond another car's front is behind that car along the road, and the ego meets that car first; where
+        bodies overlap along the road (a car straddling into the lane beside one in it, a car standing with
+        its front just past a lane's end, a wreck) the ego may meet either first."""
+        cache = self.__dict__.setdefault("_leaders", {})
         if lane not in cache:
-            ahead = [c for c in self.others if lane in c.lanes and c.front >= self.ego.front]
-            cache[lane] = min(ahead, key=lambda c: (c.front - c.length, c.front)) if ahead else None
+            lead = self.leader(lane)
+            cache[lane] = () if lead is None else (lead, *(
+                c for c in self.others if c is not lead and lane in c.lanes and c.front >= self.ego.front
+                and c.front - c.length < lead.front))
+        return cache[lane]
+
+    def followers(self, lane: int) -> tuple:
+        """The cars behind in ``lane`` (front behind the ego's) that no other car behind hides: the follower
+        first, then every car whose front is beyond the rear of each other car behind (a car with another
+        car's rear at or ahead of its front meets that car first)."""
+        cache = self.__dict__.setdefault("_followers", {})
+        if lane not in cache:
+            behind = [c for c in self.others if lane in c.lanes and c.front < self.ego.front]
+            first = self.follower(lane)
+            foremost_rears = sorted(behind, key=lambda o: o.front - o.length, reverse=True)[:2]
+
+            def hidden(c) -> bool:
+                other = [o for o in foremost_rears if o is not c][:1]
+                return bool(other) and other[0].front - other[0].length >= c.front
+
+            cache[lane] = () if first is None else (first, *(c for c in behind if c is not first and not hidden(c)))
         return cache[lane]
 
     def _neighbours(self, lane: int):
@@ -79,16 +100,20 @@ class Scene:
             cache[lane] = (ahead, behind)
         return cache[lane]
 
-    def ahead_of(self, car: Car, lane: int):
-        """The nearest other car in ``lane`` whose front is strictly ahead of ``car``'s (None if none):
-        whom ``car`` follows there (the ego is never ahead of a car that matters to it)."""
+    def leads_of(self, car: Car, lane: int) -> tuple:
+        """The other cars in ``lane`` whose front is strictly ahead of ``car``'s and that no car among them
+        hides from it (as ``leaders`` says for the ego): whom ``car`` follows there, the nearest first (the ego
+        is never ahead of a car that matters to it)."""
         order = self.__dict__.setdefault("_lane_orders", {})
         if lane not in order:
             cars = sorted((c for c in self.others if lane in c.lanes), key=lambda c: c.front)
             order[lane] = ([c.front for c in cars], cars)
         fronts, cars = order[lane]
         k = bisect.bisect_right(fronts, car.front)
-        return cars[k] if k < len(cars) else None
+        if k == len(cars):
+            return ()
+        lead = cars[k]
+        return (lead, *(c for c in cars[k + 1:] if c.front - c.length < lead.front))
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,6 @@
-"""Self-safety (7.4) when bodies ahead overlap along the road: the car whose rear is nearest counts too."""
+"""Bodies that overlap along the road (cars straddling into a lane, a car standing just past a lane's end, a wreck):
+every car no other car hides counts, in self-safety (7.4), for the cars behind, for the cars at risk and for
+entries (7.5) under both over-approximations."""
 from guardian.decide.traffic import TrafficSupervisor
 from guardian.model.scene import Car, Scene
 from itha.car_following import CarFollowingParams
@@ -26,5 +28,65 @@ def test_a_car_standing_with_its_front_just_past_a_lanes_end_is_not_hidden_by_th
 def test_without_overlaps_the_leader_alone_decides():
     near, far = Car(115.0, 10.0, frozenset({1}), 5.0, "near"), Car(140.0, 0.0, frozenset({1}), 5.0, "far")
     scene = Scene(Car(100.0, 5.0, frozenset({1}), 5.0, "ego"), (far, near), 2)
-    assert scene.nearest_rear_ahead(1) is scene.leader(1) is near
+    assert scene.leaders(1) == (near,) and scene.leader(1) is near
     assert _fastest([far, near]) == _fastest([near])
+
+
+def _car(front, speed, length, name, lanes=(1,), announces=False):
+    return Car(front, speed, frozenset(lanes), length, name, announces=announces)
+
+
+def test_every_car_ahead_whose_body_overlaps_the_leaders_counts_not_only_the_nearest_rear():
+    """Three bodies overlap along lane 1 (cars straddling into it): the leader (front nearest), a long car whose
+    rear is nearest, and between them a standing car. The standing one limits the ego most; a rule that weighs
+    the leader and the nearest rear alone misses it."""
+    leader, long_car = _car(130.0, 20.0, 5.0, "leader"), _car(140.0, 20.0, 20.0, "long")
+    standing = _car(135.0, 0.0, 12.0, "standing")
+    assert _fastest([leader, long_car, standing]) == _fastest([standing]) < _fastest([leader, long_car])
+
+
+def test_a_car_behind_whose_body_overlaps_the_followers_counts_for_the_entry_too():
+    """Entering lane 2: the nearest car behind is slow, a long fast car beside it (its front 2 m further back)
+    is not hidden by it, and the ego must keep it in its set as well."""
+    ego = _car(100.0, 20.0, 5.0, "ego")
+    near, fast = _car(90.0, 15.0, 5.0, "near", (2,)), _car(88.0, 35.0, 20.0, "fast", (2,))
+    sup = TrafficSupervisor(PARAMS)
+    both, _ = sup.follower_speeds(Scene(ego, (near, fast), 2).with_ego_lanes({1, 2}), 2)
+    alone, _ = sup.follower_speeds(Scene(ego, (fast,), 2).with_ego_lanes({1, 2}), 2)
+    only_near, _ = sup.follower_speeds(Scene(ego, (near,), 2).with_ego_lanes({1, 2}), 2)
+    assert both == alone != only_near
+    assert Scene(ego, (near, _car(80.0, 35.0, 5.0, "behind near", (2,))), 2).followers(2) == (near,)
+
+
+def test_a_car_is_at_risk_when_a_body_overlapping_the_one_it_follows_is_too_close():
+    """Car x follows, 25 m back, a car that a standing long car overlaps along the lane: that car is at risk,
+    and x could stop behind it; but the long car's rear lies 10 m ahead of x, too close at 12 m/s. x may run
+    into it, so it is at risk too; weighing only the car with the nearest front ahead of x misses it."""
+    x = _car(130.0, 12.0, 5.0, "x")
+    ahead, truck = _car(160.0, 20.0, 5.0, "ahead"), _car(170.0, 0.0, 30.0, "truck")
+    scene = Scene(_car(50.0, 20.0, 5.0, "ego", (2,)), (x, ahead, truck), 2)
+    assert scene.leads_of(x, 1) == (ahead, truck)
+    sup = TrafficSupervisor(PARAMS)
+    assert "behind truck" in sup.at_risk(scene, x) and "truck" in sup.at_risk(scene, ahead)
+    assert sup.at_risk(Scene(scene.ego, (x, _car(160.0, 0.0, 5.0, "ahead alone")), 2), x) == ""
+
+
+def _entry_top(sup, others) -> float:
+    ego = _car(100.0, 20.0, 5.0, "ego")
+    verdict = sup.entry(Scene(ego, tuple(others), 2), 2)
+    return max((hi for _, hi in verdict.speeds), default=-1.0)
+
+
+def test_an_ordered_entry_weighs_a_standing_body_that_overlaps_the_announced_leader():
+    """Under the ordered over-approximation a car that takes part in the order is where it says and hides the
+    cars wholly beyond it; a standing long car whose rear lies nearer than that car's front is not hidden: the
+    entry's speeds are the ones it allows, as under the trivial over-approximation."""
+    leader = _car(130.0, 20.0, 5.0, "leader", (2,), announces=True)
+    truck = _car(140.0, 0.0, 20.0, "truck", (2,), announces=True)
+    beyond = _car(160.0, 0.0, 5.0, "beyond", (2,), announces=True)
+    for overapprox in ("trivial", "ordered"):
+        sup = TrafficSupervisor(PARAMS, overapprox=overapprox)
+        assert _entry_top(sup, [leader, truck]) == _entry_top(sup, [truck, leader]) == _entry_top(sup, [truck])
+        assert _entry_top(sup, [truck]) < _entry_top(sup, [leader])
+    ordered = TrafficSupervisor(PARAMS, overapprox="ordered")
+    assert _entry_top(ordered, [leader, beyond]) == _entry_top(ordered, [leader])   # hidden: wholly beyond it
