@@ -1,4 +1,4 @@
-"""``guardian highd generate``, ``guardian data convert ngsim``, ``guardian replay``: HighD-format data."""
+"""``guardian highd generate``, ``guardian data convert ngsim|commonroad``, ``guardian replay``: HighD-format data."""
 from __future__ import annotations
 
 import time
@@ -32,6 +32,26 @@ def cmd_data_convert_ngsim(args) -> int:
     except (HighDFormatError, ValueError) as exc:
         return usage_error(args, str(exc))
     emit(result, args.json, "\n".join(f"{k}: {v}" for k, v in result.items()))
+    return 0
+
+
+def cmd_data_convert_commonroad(args) -> int:
+    from guardian.errors import HighDFormatError
+    from guardian.highd.commonroad import convert_commonroad
+
+    files = sorted(args.path.glob("*.xml")) if args.path.is_dir() else [args.path]
+    if not files:
+        return usage_error(args, f"{args.path}: no .xml file in the folder")
+    done = []
+    progress = progress_bar("data convert commonroad")
+    try:
+        for k, f in enumerate(files):
+            done.append(convert_commonroad(f, args.out, args.first_id + k))
+            progress(k + 1, len(files))
+    except HighDFormatError as exc:
+        return usage_error(args, str(exc))
+    result = done[0] if len(done) == 1 else {"out": str(args.out), "recordings": done}
+    emit(result, args.json, "\n\n".join("\n".join(f"{k}: {v}" for k, v in r.items()) for r in done))
     return 0
 
 
@@ -180,6 +200,14 @@ def add_commands(sub) -> None:
                    help="the recording's id, written into the meta files and the file names (NN_tracks.csv; "
                         "default %(default)s)")
     p.set_defaults(func=cmd_data_convert_ngsim)
+    p = csub.add_parser("commonroad", help="CommonRoad scenarios (recorded traffic: US-101, highD, ...) to HighD "
+                                           "recordings (needs the commonroad extra)", parents=[out])
+    p.add_argument("path", type=existing_path,
+                   help="a CommonRoad scenario (.xml), or a folder of them (one recording each, sorted by name)")
+    p.add_argument("--out", type=output_folder, required=True, help="the folder the recordings are written to")
+    p.add_argument("--first-id", type=count(1), default=1,
+                   help="the first recording's id (NN in the file names; the next file gets the next id)")
+    p.set_defaults(func=cmd_data_convert_commonroad, on_interrupt="the recordings written so far are complete")
     p = sub.add_parser("replay", help="override rates of the ITHA guardian on HighD-format data (Table 7.2)",
                        parents=[out])
     p.add_argument("path", nargs="?", type=existing_path, default=None,

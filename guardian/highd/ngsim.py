@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from guardian.errors import HighDFormatError
-from guardian.highd.schema import RECORDING_META, TRACKS, TRACKS_META, file_name
+from guardian.highd.trajectories import longest_runs, write_highd
 
 FEET = 0.3048
 COLUMNS = ("Vehicle_ID", "Frame_ID", "Total_Frames", "Global_Time", "Local_X", "Local_Y", "Global_X", "Global_Y",
@@ -49,7 +49,6 @@ INTEGER_COLUMNS = ("Vehicle_ID", "Frame_ID", "Total_Frames", "Global_Time", "v_C
                    "Following")
 CLASSES = {1: "Motorcycle", 2: "Car", 3: "Truck"}
 NO_HEADWAY = 9999.0    # NGSIM writes 9999.99 for "no vehicle ahead"
-ROAD_TOP = 20.0        # [m] image y of the first lower-carriageway marking
 FRAME_RATE = 10
 
 
@@ -108,21 +107,16 @@ def read_ngsim(path: Path) -> tuple[pd.DataFrame, list]:
     return df, extra
 
 
-def _main_line_runs(df: pd.DataFrame, main_lanes: int) -> tuple[pd.DataFrame, dict]:
-    """Rows on lanes 1..main_lanes; each vehicle keeps its longest run of consecutive frames (first on ties)."""
-    on_main = df["Lane_ID"].between(1, main_lanes)
-    kept = df[on_main].sort_values(["Vehicle_ID", "Frame_ID"]).reset_index(drop=True)
-    run = ((kept["Frame_ID"].diff() != 1) | (kept["Vehicle_ID"].diff() != 0)).cumsum()
-    size = run.map(run.value_counts())
-    ranked = pd.DataFrame({"vid": kept["Vehicle_ID"], "run": run, "size": size})
-    best = ranked.sort_values(["vid", "size", "run"], ascending=[True, False, True]).groupby("vid")["run"].first()
-    result = kept[run == kept["Vehicle_ID"].map(best)].reset_index(drop=True)
-    runs_per_vehicle = ranked.groupby("vid")["run"].nunique()
-    report = {"ramp_rows_dropped": int((~on_main).sum()),
-              "rows_dropped_to_keep_frames_consecutive": int(len(kept) - len(result)),
-              "vehicles_cut": int((runs_per_vehicle > 1).sum()),
-              "vehicles_only_on_ramps": int(df["Vehicle_ID"].nunique() - result["Vehicle_ID"].nunique())}
-    return result, report
+def trajectories(df: pd.DataFrame) -> pd.DataFrame:
+    """NGSIM's columns as ``guardian.highd.trajectories.TRAJECTORY_COLUMNS`` (metres; ``Global_Time`` kept)."""
+    thw = df["Time_Headway"].to_numpy()
+    return pd.DataFrame({
+        "vehicle": df["Vehicle_ID"], "frame": df["Frame_ID"], "front": df["Local_Y"] * FEET,
+        "lateral": df["Local_X"] * FEET, "length": df["v_Length"] * FEET, "width": df["v_Width"] * FEET,
+        "vclass": df["v_Class"].map(lambda k: CLASSES.get(int(k), "Car")), "speed": df["v_Vel"] * FEET,
+        "accel": df["v_Acc"] * FEET, "lane": df["Lane_ID"], "preceding": df["Preceding"],
+        "following": df["Following"], "space_headway": df["Space_Headway"] * FEET,
+        "time_headway": np.where(thw < NO_HEADWAY, thw, 0.0), "Global_Time": df["Global_Time"]})
 
 
 def convert_ngsim(path: Path, out: Path, main_lanes: int | None = None, recording_id: int = 1,
@@ -152,99 +146,11 @@ def convert_ngsim(path: Path, out: Path, main_lanes: int | None = None, recordin
     requested = main_lanes
     if main_lanes is None:
         main_lanes = int(df["Lane_ID"].max())
-    df, report = _main_line_runs(df, main_lanes)
-    if df.empty:
+    t, report = longest_runs(trajectories(df), main_lanes)
+    if t.empty:
         raise HighDFormatError(f"{path}: no row on the main line (lanes 1..{main_lanes})")
-    length, width = df["v_Length"].to_numpy() * FEET, df["v_Width"].to_numpy() * FEET
-    lateral = df["Local_X"].to_numpy() * FEET
-    centres = pd.Series(lateral).groupby(df["Lane_ID"].to_numpy()).median().reindex(range(1, main_lanes + 1))
-    centres = centres.interpolate(limit_direction="both").to_numpy()
-    spacing = np.diff(centres).mean() if main_lanes > 1 else 3.6
-    bounds = np.concatenate([[centres[0] - spacing / 2], (centres[1:] + centres[:-1]) / 2,
-                             [centres[-1] + spacing / 2]])
-    shift = ROAD_TOP - bounds[0]
-    lower = bounds + shift
-    upper = ROAD_TOP - np.array([3, 2, 1]) * 3.6 - 0.5  # two empty lanes above, as in the I-80 sample
-    front = df["Local_Y"].to_numpy() * FEET
-    v = df["v_Vel"].to_numpy() * FEET
-    key = pd.MultiIndex.from_arrays([df["Vehicle_ID"], df["Frame_ID"]])
-    present = pd.Series(np.arange(len(df)), index=key)
-    tracks = pd.DataFrame({"frame": df["Frame_ID"], "id": df["Vehicle_ID"], "x": front - length,
-                           "y": lateral + shift - width / 2, "width": length, "height": width,
-                           "xVelocity": v, "yVelocity": 0.0, "xAcceleration": df["v_Acc"].to_numpy() * FEET,
-                           "yAcceleration": 0.0})
-    y_centre = lateral + shift
-    same = df["Vehicle_ID"].to_numpy()[1:] == df["Vehicle_ID"].to_numpy()[:-1]
-    vy = np.zeros(len(df))
-    vy[:-1] = np.where(same, np.diff(y_centre) * FRAME_RATE, 0.0)
-    tracks["yVelocity"] = vy
-    road_end = float(front.max())
-    tracks["frontSightDistance"] = road_end - front
-    tracks["backSightDistance"] = front - length - float((front - length).min())
-    cleared = 0
-    for c in ("Preceding", "Following"):
-        ref = pd.MultiIndex.from_arrays([df[c], df["Frame_ID"]])
-        ok = (df[c].to_numpy() != 0) & present.reindex(ref).notna().to_numpy()
-        cleared += int(((df[c].to_numpy() != 0) & ~ok).sum())
-        tracks["precedingId" if c == "Preceding" else "followingId"] = np.where(ok, df[c].to_numpy(), 0)
-    has_lead = tracks["precedingId"].to_numpy() != 0
-    lead_rows = present.reindex(pd.MultiIndex.from_arrays([tracks["precedingId"], df["Frame_ID"]])).to_numpy()
-    v_lead = np.where(has_lead, v[np.nan_to_num(lead_rows, nan=0).astype(int)], 0.0)
-    dhw = np.where(has_lead, df["Space_Headway"].to_numpy() * FEET, 0.0)
-    thw_raw = df["Time_Headway"].to_numpy()
-    closing = has_lead & (v > v_lead)
-    tracks["dhw"] = dhw
-    tracks["thw"] = np.where(has_lead & (thw_raw < NO_HEADWAY), thw_raw, 0.0)
-    tracks["ttc"] = np.where(closing, dhw / np.where(closing, v - v_lead, 1.0), 0.0)
-    tracks["precedingXVelocity"] = v_lead
-    for c in ("leftPrecedingId", "leftAlongsideId", "leftFollowingId", "rightPrecedingId", "rightAlongsideId",
-              "rightFollowingId"):
-        tracks[c] = 0
-    tracks["laneId"] = df["Lane_ID"].to_numpy() + 4
-    tracks = tracks[list(TRACKS)].sort_values(["frame", "id"]).reset_index(drop=True)
-    report["neighbour_references_cleared"] = cleared
-    meta = _tracks_meta(tracks, df)
-    rec_meta = _recording_meta(recording_id, location_id, df, tracks, meta, upper, lower)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    files = []
-    for kind, table in (("recordingMeta", rec_meta), ("tracksMeta", meta), ("tracks", tracks)):
-        p = out / file_name(recording_id, kind)
-        table.to_csv(p, index=False, float_format="%.2f")
-        files.append(str(p))
-    return {"source": str(path), "out": str(out), "files": files, "vehicles": int(len(meta)),
-            "rows": int(len(tracks)), "main_lanes": requested, "lanes": main_lanes, "ignored_columns": extra,
-            **report}
-
-
-def _tracks_meta(tracks: pd.DataFrame, df: pd.DataFrame) -> pd.DataFrame:
-    g = tracks.groupby("id")
-    cls = df.groupby("Vehicle_ID")["v_Class"].first().map(lambda k: CLASSES.get(int(k), "Car"))
-    meta = pd.DataFrame({
-        "width": g["width"].first(), "height": g["height"].first(), "initialFrame": g["frame"].min(),
-        "finalFrame": g["frame"].max(), "numFrames": g.size(), "class": cls.reindex(g.size().index),
-        "drivingDirection": 2, "traveledDistance": g["x"].max() - g["x"].min(),
-        "minXVelocity": g["xVelocity"].min(), "maxXVelocity": g["xVelocity"].max(),
-        "meanXVelocity": g["xVelocity"].mean(),
-    })
-    for name, col in (("minDHW", "dhw"), ("minTHW", "thw"), ("minTTC", "ttc")):
-        pos = tracks[col].where(tracks[col] > 0)
-        meta[name] = pos.groupby(tracks["id"]).min().reindex(meta.index).fillna(-1)
-    meta["numLaneChanges"] = g["laneId"].apply(lambda s: int((s.diff().fillna(0) != 0).sum()))
-    return meta.reset_index().rename(columns={"index": "id"})[list(TRACKS_META)]
-
-
-def _recording_meta(rid, location_id, df, tracks, meta, upper, lower) -> pd.DataFrame:
-    start = dt.datetime.fromtimestamp(int(df["Global_Time"].min()) / 1000, tz=dt.timezone.utc)
-    n_trucks = int((meta["class"] == "Truck").sum())
-    frames = tracks["frame"]
-    return pd.DataFrame([{
-        "id": rid, "frameRate": FRAME_RATE, "locationId": location_id, "speedLimit": -1.0,
-        "month": start.strftime("%m.%Y"), "weekDay": start.strftime("%a"), "startTime": start.strftime("%H:%M"),
-        "duration": round((frames.max() - frames.min() + 1) / FRAME_RATE, 2),
-        "totalDrivenDistance": round(float(meta["traveledDistance"].sum()), 2),
-        "totalDrivenTime": round(len(tracks) / FRAME_RATE, 2), "numVehicles": len(meta),
-        "numCars": len(meta) - n_trucks, "numTrucks": n_trucks,
-        "upperLaneMarkings": ";".join(f"{m:.2f}" for m in upper),
-        "lowerLaneMarkings": ";".join(f"{m:.2f}" for m in lower),
-    }])[list(RECORDING_META)]
+    start = dt.datetime.fromtimestamp(int(t["Global_Time"].min()) / 1000, tz=dt.timezone.utc)
+    files, written = write_highd(t, out, main_lanes, FRAME_RATE, start, recording_id, location_id)
+    return {"source": str(path), "out": str(out), "files": files, "vehicles": int(t["vehicle"].nunique()),
+            "rows": int(len(t)), "main_lanes": requested, "lanes": main_lanes, "ignored_columns": extra,
+            **report, **written}
