@@ -158,8 +158,6 @@ def project(line: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 
 def _vehicle_rows(path: Path, obstacle) -> tuple[list, str]:
-    from commonroad.prediction.prediction import TrajectoryPrediction
-
     oid, kind = obstacle.obstacle_id, obstacle.obstacle_type.name
     if kind not in CLASSES:
         raise HighDFormatError(f"{path}: dynamic obstacle {oid}: type {kind} is not a vehicle the converter maps "
@@ -169,7 +167,7 @@ def _vehicle_rows(path: Path, obstacle) -> tuple[list, str]:
         raise HighDFormatError(f"{path}: dynamic obstacle {oid}: shape {type(shape).__name__} "
                                f"(origin shift {getattr(shape, 'origin_x_shift', 0.0)}): the converter maps a "
                                f"rectangle centred on the position")
-    if not isinstance(obstacle.prediction, TrajectoryPrediction):
+    if type(obstacle.prediction).__name__ != "TrajectoryPrediction":
         raise HighDFormatError(f"{path}: dynamic obstacle {oid}: no trajectory (a "
                                f"{type(obstacle.prediction).__name__})")
     states = [obstacle.initial_state, *obstacle.prediction.trajectory.state_list]

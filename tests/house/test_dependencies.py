@@ -6,7 +6,7 @@ This test reads the imports themselves: every ``import x`` / ``from x import ...
 of the packages the wheel ships (at any depth, inside functions too; docstrings and comments do not
 count), less the standard library and the project's own packages, mapped to the distribution that
 provides it, must be in ``[project] dependencies``. An extra's modules (``rl``: stable-baselines3, torch;
-``sumo``: eclipse-sumo, libsumo) may be imported only inside a ``try`` whose ``except ImportError`` raises an
+``sumo``: eclipse-sumo, libsumo; ``commonroad``: commonroad-io) may be imported only inside a ``try`` whose ``except ImportError`` raises an
 error naming ``pip install 'guardian[EXTRA]'``.
 """
 import ast
@@ -19,7 +19,8 @@ import pytest
 from project import ROOT
 
 PACKAGES = ("guardian", "envs", "rcis", "intention", "itha")  # setup.py's find_packages(include=...)
-EXTRAS = {"rl": {"stable-baselines3", "torch"}, "sumo": {"eclipse-sumo", "libsumo", "traci"}}  # extra -> its distributions
+EXTRAS = {"rl": {"stable-baselines3", "torch"}, "sumo": {"eclipse-sumo", "libsumo", "traci"},
+          "commonroad": {"commonroad-io"}}  # extra -> its distributions
 
 
 def _dist_name(requirement: str) -> str:

@@ -77,7 +77,7 @@ def test_version_without_installed_metadata(monkeypatch, capsys):
 
 @pytest.mark.parametrize("argv,choices", [
     ([], "rcis, rollout, falsify, itha, highd, data, replay, serve, sumo"), (["rcis"], "build, certify, export, plot"),
-    (["itha"], "highway, processors"), (["highd"], "generate"), (["data"], "convert"), (["data", "convert"], "ngsim"),
+    (["itha"], "highway, processors"), (["highd"], "generate"), (["data"], "convert"), (["data", "convert"], "ngsim, commonroad"),
 ])
 def test_a_group_without_its_command_says_which_there_are(argv, choices, capsys):
     assert main(argv) == 2
