@@ -9,6 +9,11 @@ import numpy as np
 import rerun as rr
 
 
+def save_to(rec, path, blueprint) -> None:
+    """Stream ``rec`` into the file ``path`` (its folder made if missing) with ``blueprint`` as the view."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    rec.save(str(path), default_blueprint=blueprint)
+
 
 def run_blueprint(series: tuple[str, ...], road_name: str = "road"):
     """The layout a rollout recording opens with: the road left; the inputs beside their admissible
@@ -71,7 +76,7 @@ class HighwayRecorder(_Closing):
 
     def __init__(self, path: Path, n_lanes: int, application_id: str = "guardian-highway"):
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(path), default_blueprint=run_blueprint(("/ego",)))
+        save_to(self.rec, path, run_blueprint(("/ego",)))
         self.path = Path(path)
         self.n_lanes = n_lanes
         self.step_index = 0
@@ -189,7 +194,7 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
     over = overrides_of(data)
     flagged = {(int(v), int(f)) for v, f in zip(data.vehicle[over], data.frame[over])}
     rec = rr.RecordingStream("guardian-highd")
-    rec.save(str(path), default_blueprint=highd_blueprint())
+    save_to(rec, path, highd_blueprint())
     _log_vehicle_series(rec, data, params)
     length = 450.0
     marks = rec_data.upper_markings + rec_data.lower_markings
@@ -232,7 +237,7 @@ class GuardianRecorder(_Closing):
 
     def __init__(self, path: Path, application_id: str = "guardian-highway-env"):
         self.rec = rr.RecordingStream(application_id)
-        self.rec.save(str(path), default_blueprint=run_blueprint(("/inputs", "/admissible", "/intention")))
+        save_to(self.rec, path, run_blueprint(("/inputs", "/admissible", "/intention")))
         self.path = Path(path)
         self.step_index = 0
         self._valid = None

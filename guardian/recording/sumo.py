@@ -18,6 +18,7 @@ import numpy as np
 import rerun as rr
 
 from guardian.adapters.sumo.scene import corners
+from guardian.recording.rerun import save_to
 
 GREEN, AMBER, RED, BLUE, GREY = (40, 180, 60), (240, 170, 30), (220, 50, 50), (60, 120, 220), (150, 150, 150)
 VIEW = 200.0  # [m] of road in view on opening
@@ -44,7 +45,7 @@ class SumoRecorder:
     def start_episode(self, episode: str, frame, first) -> None:
         """A new episode on ``frame``'s road; ``first``: the first guarded body (the view opens on it)."""
         if not self._saved:
-            self.rec.save(str(self.path), default_blueprint=self._blueprint(first, frame))
+            save_to(self.rec, self.path, self._blueprint(first, frame))
             self._saved = True
         width, n = frame.lane_width, frame.n_lanes
         length = float(frame.length)

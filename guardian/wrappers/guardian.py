@@ -87,8 +87,8 @@ import numpy as np
 from highway_env.envs.common.abstract import AbstractEnv
 
 from envs.highway_overtake import HighwayOvertakeEnv
-from guardian.adapters.highway_env.checks import (check_env, controlled_action_types, controlled_vehicles,
-                                                  multi_agent)
+from guardian.adapters.highway_env.checks import (check_action, check_env, controlled_action_types,
+                                                  controlled_vehicles, multi_agent)
 from guardian.adapters.highway_env.supervision import META, OvertakeSupervision, RoadSupervision
 from guardian.config import GuardianConfig
 from guardian.errors import ConfigError
@@ -120,6 +120,11 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(self, library=library, config=config, _disable_deepcopy=True)
         super().__init__(env)
         config = GuardianConfig() if config is None else config
+        inner = env
+        while isinstance(inner, gym.Wrapper):
+            if isinstance(inner, Guardian):
+                raise ConfigError("Guardian: the env is already wrapped in a Guardian; wrap it once")
+            inner = inner.env
         base = env.unwrapped
         if not isinstance(base, AbstractEnv):
             raise ConfigError(f"Guardian: {type(base).__name__} is not a highway-env environment")
@@ -245,6 +250,7 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
             The env's ``(obs, reward, terminated, truncated, info)``; ``info["guardian"]`` holds what
             the guardian did (see the module docstring).
         """
+        check_action(self.env.action_space, action)
         base = self.env.unwrapped
         reattached = not self._is_attached(base)
         if reattached:

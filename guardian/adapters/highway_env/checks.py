@@ -18,8 +18,11 @@ env's config when it is wrapped) ask the same functions.
 """
 from __future__ import annotations
 
+import difflib
 import math
 from numbers import Real
+
+import numpy as np
 
 from guardian.errors import ConfigError
 
@@ -56,8 +59,8 @@ def _is(value, kind: str) -> bool:
 def check_config(defaults: dict, config: dict, where: str) -> None:
     """Refuse a value of ``config`` that is not of its default's kind or out of its range (module docstring).
 
-    ``defaults`` is the env class's ``default_config()``; keys it lacks are not checked here (the command
-    line refuses them, an env may read extra keys of its own); ``where`` names the env in the message.
+    ``defaults`` is the env class's ``default_config()``; keys it lacks are ``check_keys``' business;
+    ``where`` names the env in the message.
     """
     for key, value in config.items():
         if key not in defaults:
@@ -174,10 +177,46 @@ def action_kind(base) -> str:
     return kinds.pop()
 
 
+def check_keys(defaults: dict, config: dict, where: str) -> None:
+    """Refuse a key of ``config`` its env class's ``default_config()`` lacks: highway-env takes a misspelt key
+    (``lanes_cout``) without a word and runs with the default."""
+    unknown = sorted(set(config) - set(defaults))
+    if unknown:
+        near = {k: difflib.get_close_matches(k, list(defaults), n=1) for k in unknown}
+        said = ", ".join(f"{k!r}" + (f" (did you mean {near[k][0]!r}?)" if near[k] else "") for k in unknown)
+        raise ConfigError(f"{where}: the env has no config key {said}")
+
+
 def check_env(base) -> str:
     """Refuse an env the guardian cannot supervise (its config, its action type); the action kind."""
     kind = action_kind(base)
     name = base.spec.id if base.spec is not None else type(base).__name__
+    check_keys(type(base).default_config(), base.config, f"Guardian: {name}")
     check_config(type(base).default_config(), base.config, f"Guardian: {name}")
     merge_limits(type(base), name, kind == "ContinuousAction", multi_agent(base))
     return kind
+
+
+def check_action(space, action) -> None:
+    """Refuse an action outside the env's action space in one line naming it: a discrete action must be one
+    of the space's; a continuous one must have the space's shape and finite values (values beyond the
+    bounds are clipped to them, as highway-env does); a tuple (several controlled cars) one per car."""
+    from gymnasium import spaces
+
+    where = f"Guardian.step: action {action!r}"
+    if isinstance(space, spaces.Tuple):
+        if not isinstance(action, (tuple, list)) or len(action) != len(space.spaces):
+            raise ValueError(f"{where} is not a tuple of {len(space.spaces)} actions, one per controlled car")
+        for sub, a in zip(space.spaces, action):
+            check_action(sub, a)
+        return
+    if isinstance(space, spaces.Box):
+        try:
+            values = np.asarray(action, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where} is not a vector of numbers for {space}") from None
+        if values.shape != space.shape or not np.all(np.isfinite(values)):
+            raise ValueError(f"{where} is not {space.shape[0] if space.shape else 1} finite number(s) for {space}")
+        return
+    if not space.contains(action):
+        raise ValueError(f"{where} is not in the env's action space {space}")
