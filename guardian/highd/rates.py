@@ -171,13 +171,13 @@ def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, even
     rss_cal_over = longitudinal_violations(rss_calibrated, test.v, test.h, test.vL)
     refused = {k: collect() for k, collect in judged.items()}   # judged on the workers meanwhile
     out = {"disturbance_bounds": [bounds[0], bounds[1]], "input_bounds": [p.u_min, p.u_max],
-           "override_rates": {"self_safety": float(over.mean()) if len(over) else 0.0,
+           "override_rates": {"self_safety": _mean(over),
                               "responsibility_trivial": _rate(refused["trivial"].overrides, events),
                               "responsibility_ordered": _rate(refused["ordered"].overrides, events),
                               "responsibility_trivial_no_input": _rate(refused["trivial"].no_input, events),
                               "responsibility_ordered_no_input": _rate(refused["ordered"].no_input, events),
-                              "rss_longitudinal": float(rss_over.mean()) if len(rss_over) else 0.0,
-                              "rss_longitudinal_calibrated": float(rss_cal_over.mean()) if len(rss_cal_over) else 0.0,
+                              "rss_longitudinal": _mean(rss_over),
+                              "rss_longitudinal_calibrated": _mean(rss_cal_over),
                               "rss_cut_in": _rate(sum(not _rss_cut_in(rss_default, e) for e in events), events),
                               "rss_cut_in_calibrated": _rate(sum(not _rss_cut_in(rss_calibrated, e) for e in events),
                                                              events)},
@@ -203,8 +203,13 @@ def _rss_cut_in(params: RSSParams, e) -> bool:
     return cut_in_safe(params, e.p, e.v, e.lane, e.length, e.ego, target)
 
 
-def _rate(n: int, events) -> float:
-    return n / len(events) if events else 0.0
+def _rate(n: int, events) -> float | None:
+    """``n`` of the events, or None when there is none: a rate of nothing is not 0 %."""
+    return n / len(events) if events else None
+
+
+def _mean(flags: np.ndarray) -> float | None:
+    return float(flags.mean()) if len(flags) else None
 
 
 def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
@@ -222,7 +227,7 @@ def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
             "train_samples": int(len(samples)), "bounds": list(bounds), "input_bounds": [p.u_min, p.u_max],
             "test_points": int(mask.sum()),
             "self_safety": float(over[mask].mean())}
-    return {"self_safety": float(over.mean()) if len(over) else 0.0, "by_context": table,
+    return {"self_safety": _mean(over), "by_context": table,
             "note": "contexts with fewer than 200 training samples use the single-context bounds"}
 
 

@@ -24,6 +24,8 @@ Rates (numerator / denominator):
   recorded next speed outside it) is not judged and counts as an override;
 * ``responsibility_trivial_no_input`` / ``..._ordered_no_input``: of those, the lane changes for which no input
   of U is ρ̂-responsible (the rate this replay reported before it looked at the recorded input).
+
+A rate whose denominator is empty (no held-out lane change, no test point) is ``None`` (printed ``-``), never 0 %.
 """
 from __future__ import annotations
 

@@ -191,9 +191,9 @@ def check_env(base) -> str:
     """Refuse an env the guardian cannot supervise (its config, its action type); the action kind."""
     kind = action_kind(base)
     name = base.spec.id if base.spec is not None else type(base).__name__
+    merge_limits(type(base), name, kind == "ContinuousAction", multi_agent(base))   # the env's own words first
     check_keys(type(base).default_config(), base.config, f"Guardian: {name}")
     check_config(type(base).default_config(), base.config, f"Guardian: {name}")
-    merge_limits(type(base), name, kind == "ContinuousAction", multi_agent(base))
     return kind
 
 

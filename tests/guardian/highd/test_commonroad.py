@@ -144,3 +144,18 @@ def test_a_folder_converts_through_the_command_and_replays(tmp_path, capsys):
     assert main(["data", "convert", "commonroad", str(tmp_path / "out" / "01_tracks.csv"), "--out",
                  str(tmp_path / "x")]) == 2
     assert "01_tracks.csv: not a CommonRoad scenario" in capsys.readouterr().err
+
+
+def test_a_rate_of_no_lane_change_is_none_not_zero(tmp_path, capsys):
+    """Recorded traffic in which nobody changes lanes has no responsibility rate: the replay says so (None,
+    printed "-") rather than 0 %, which would read as a lane change judged and passed."""
+    cars = [_vehicle(10 + k, 20.0 + 30.0 * (k // 3), -1.75 - WIDTH * (k % 3), 20.0, 0.0, steps=60) for k in range(15)]
+    convert_commonroad(_scenario(tmp_path / "s.xml", vehicles=cars), tmp_path / "out")
+    assert main(["replay", str(tmp_path / "out"), "--json", "--no-cache"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    rates = result["override_rates"]
+    assert result["lane_changes"] == 0 and result["test_data_points"] > 0
+    assert rates["responsibility_trivial"] is None and rates["responsibility_ordered"] is None
+    assert rates["rss_cut_in"] is None and isinstance(rates["self_safety"], float)
+    assert main(["replay", str(tmp_path / "out"), "--no-cache"]) == 0
+    assert "trivial -, ordered -" in capsys.readouterr().out
