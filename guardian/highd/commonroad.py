@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from guardian.errors import HighDFormatError
-from guardian.highd.trajectories import longest_runs, write_highd
+from guardian.highd.trajectories import longest_runs, neighbours, write_highd
 
 CLASSES = {"CAR": "Car", "TAXI": "Car", "PRIORITY_VEHICLE": "Car", "TRUCK": "Truck", "BUS": "Truck",
            "MOTORCYCLE": "Motorcycle"}
@@ -206,24 +206,6 @@ def _lanes_of(network, lanes: dict, line: np.ndarray, xy: np.ndarray) -> np.ndar
     return out
 
 
-def _neighbours(t: pd.DataFrame) -> pd.DataFrame:
-    order = t.sort_values(["frame", "lane", "front"]).index
-    s = t.loc[order]
-    group = (s["frame"].astype(str) + "/" + s["lane"].astype(str)).to_numpy()
-    ahead_same = np.concatenate([group[1:] == group[:-1], [False]])
-    behind_same = np.concatenate([[False], group[1:] == group[:-1]])
-    ids, front = s["vehicle"].to_numpy(), s["front"].to_numpy()
-    preceding = np.where(ahead_same, np.roll(ids, -1), 0)
-    following = np.where(behind_same, np.roll(ids, 1), 0)
-    headway = np.where(ahead_same, np.roll(front, -1) - front, 0.0)
-    speed = s["speed"].to_numpy()
-    t.loc[order, "preceding"] = preceding
-    t.loc[order, "following"] = following
-    t.loc[order, "space_headway"] = headway
-    t.loc[order, "time_headway"] = np.where(ahead_same & (speed > 0), headway / np.where(speed > 0, speed, 1.0), 0.0)
-    return t
-
-
 def convert_commonroad(path: Path, out: Path, recording_id: int = 1, location_id: int = 0) -> dict:
     """Convert a CommonRoad scenario's recorded vehicles to one HighD recording (the module docstring has
     every choice). Returns what was converted and what was dropped, with counts."""
@@ -261,7 +243,7 @@ def convert_commonroad(path: Path, out: Path, recording_id: int = 1, location_id
     t, report = longest_runs(t, n_lanes)
     if t.empty:
         raise HighDFormatError(f"{path}: no vehicle state lies on a lanelet")
-    t = _neighbours(t.assign(preceding=0, following=0, space_headway=0.0, time_headway=0.0))
+    t = neighbours(t)
     start, start_source = _file_date(path)
     files, written = write_highd(t, out, n_lanes, frame_rate, start, recording_id, location_id,
                                  markings=markings(path, network, lanes, line))

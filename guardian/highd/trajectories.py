@@ -54,6 +54,27 @@ def longest_runs(t: pd.DataFrame, lanes: int) -> tuple[pd.DataFrame, dict]:
     return result, report
 
 
+def neighbours(t: pd.DataFrame) -> pd.DataFrame:
+    """``t`` with ``preceding``, ``following``, ``space_headway`` and ``time_headway`` from the positions: per frame
+    and lane, the nearest front ahead and behind; front to front; space headway / speed (0 at standstill)."""
+    t = t.assign(preceding=0, following=0, space_headway=0.0, time_headway=0.0)
+    order = t.sort_values(["frame", "lane", "front"]).index
+    s = t.loc[order]
+    group = (s["frame"].astype(str) + "/" + s["lane"].astype(str)).to_numpy()
+    ahead_same = np.concatenate([group[1:] == group[:-1], [False]])
+    behind_same = np.concatenate([[False], group[1:] == group[:-1]])
+    ids, front = s["vehicle"].to_numpy(), s["front"].to_numpy()
+    preceding = np.where(ahead_same, np.roll(ids, -1), 0)
+    following = np.where(behind_same, np.roll(ids, 1), 0)
+    headway = np.where(ahead_same, np.roll(front, -1) - front, 0.0)
+    speed = s["speed"].to_numpy()
+    t.loc[order, "preceding"] = preceding
+    t.loc[order, "following"] = following
+    t.loc[order, "space_headway"] = headway
+    t.loc[order, "time_headway"] = np.where(ahead_same & (speed > 0), headway / np.where(speed > 0, speed, 1.0), 0.0)
+    return t
+
+
 def write_highd(t: pd.DataFrame, out: Path, lanes: int, frame_rate: int, start: dt.datetime, recording_id: int = 1,
                 location_id: int = 0, markings=None) -> tuple[list, dict]:
     """Write trajectories (``TRAJECTORY_COLUMNS``, lanes 1..``lanes``) as HighD recording ``recording_id``.
