@@ -85,6 +85,8 @@ def _refusal(args) -> str | None:
         if given:
             return (f"{', '.join(given)} do(es) not apply with --campaign (it runs every traffic model, lane-change "
                     "model and agent, guarded and unguarded)")
+    if args.start == "ramp" and (args.road != "merge" or args.guarded != 1):
+        return "--start ramp needs --road merge (a road with an on-ramp) and one guarded vehicle"
     if args.overapprox == "ordered" and args.guarded == 1:
         return "--overapprox ordered does not apply to one guarded vehicle (nothing to announce): use --guarded N"
     if args.length < MIN_LENGTH:
@@ -112,7 +114,7 @@ def _cells(args) -> list:
     def setting(traffic: str, sublane: bool):
         at = {"straight": {}, "merge": {"ramp_at": args.length / 3}, "exit": {"exit_at": args.length / 3}}[args.road]
         return SumoSetting(net=HighwayNet(lanes=args.lanes, length=args.length, **at), seconds=args.seconds,
-                           warmup=args.warmup, guarded=args.guarded, connection=args.connection,
+                           warmup=args.warmup, guarded=args.guarded, connection=args.connection, start=args.start,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))
 
@@ -147,7 +149,7 @@ def _row(cell, results: list) -> dict:
     steps = total["traffic_car_steps"]
     crashes = [{"seed": seed, **crash} for seed, r in results for crash in r["crashes"]]
     road = "merge" if setting.net.ramp else ("exit" if setting.net.exit else "straight")
-    return {"road": road, "guarded": setting.guarded,
+    return {"road": road, "start": setting.start, "guarded": setting.guarded,
             "traffic": setting.traffic.car_following, "lane_change": setting.traffic.lane_change, "agent": agent,
             "guardian": guarded, **total, "per_hour": total["collisions"] / total["hours"] if total["hours"] else 0.0,
             "traffic_uncovered_share": total["traffic_uncovered"] / steps if steps else 0.0, "crashes": crashes}
@@ -159,10 +161,10 @@ def _text(result: dict) -> str:
             f"{result['seed']}; {result['wall_seconds']:g} s" + (" (interrupted)" if result.get("interrupted") else ""))
     lines = [head]
     for r in result["rows"]:
-        lines.append(f"{r['road']} road, {r['guarded']} guarded: {r['traffic']} {r['lane_change']} {r['agent']} "
+        lines.append(f"{r['road']} road, {r['guarded']} guarded (start: {r['start']}): {r['traffic']} {r['lane_change']} {r['agent']} "
                      f"guardian={'on' if r['guardian'] else 'off'}")
-        figures = [(k, v) for k, v in r.items() if k not in ("road", "guarded", "traffic", "lane_change", "agent",
-                                                              "guardian", "crashes")]
+        figures = [(k, v) for k, v in r.items() if k not in ("road", "start", "guarded", "traffic", "lane_change",
+                                                              "agent", "guardian", "crashes")]
         lines.append("  " + " ".join(f"{k}={_number(v)}" for k, v in figures))
         lines += [f"  crash: seed {c['seed']} step {c['step']} {c['vehicle']} and {c['partner']} rule={c['rule']} "
                   f"at_fault={c['culprit'] or False} start_inside={c['start_inside']}" for c in r["crashes"]]
@@ -223,6 +225,9 @@ def add_commands(sub) -> None:
                    help="a straight highway; one an on-ramp joins at a third of its length through a 250 m "
                         "acceleration lane that ends (merge); one an exit leaves at a third of its length after a "
                         "250 m deceleration lane (exit) (straight)")
+    p.add_argument("--start", choices=("main", "ramp"), default="main",
+                   help="where the guarded vehicle starts: on a main lane, or on the on-ramp (--road merge, one "
+                        "guarded vehicle; the result counts ramp_starts and merged) (main)")
     p.add_argument("--length", type=positive_number, default=3000.0, help="the highway's length [m] (3000)")
     p.add_argument("--guarded", type=count(1), default=1,
                    help="guarded vehicles, each with its own guardian and driver, all others traffic to it (1)")

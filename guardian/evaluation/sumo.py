@@ -36,6 +36,9 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
 - ``guarded_lost``: guarded vehicles SUMO removed before the road's end (never expected: counted against us).
 - ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
   vehicles' distance along the road, summed.
+- ``ramp_starts``: inserted guarded vehicles that started on the on-ramp (``SumoSetting.start``); ``merged``: of
+  those, the ones whose centre reached a main lane of the corridor during the episode (one that never did was held
+  on the ramp or the acceleration lane: safe, and counted, since it did not get where it was going).
 """
 from __future__ import annotations
 
@@ -109,7 +112,9 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
            "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
+           "ramp_starts": 0, "merged": 0,
            "inserted": insert_guarded(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
+    out["ramp_starts"] = int(out["inserted"] and setting.start == "ramp")
     if out["inserted"]:
         _Episode(traci, setting, frame, config, guarded, out, recorder).run(agent, rng, ask, label)
     return out
@@ -132,6 +137,7 @@ class _Episode:
         self.shadows, self.tracks, self.prev = Shadows(frame), Tracks(), {}
         self.cars: list = []
         self.left: list = []     # guarded vehicles that left the road or crashed (their tallies are kept)
+        self.merged: set = set()  # guarded vehicles that started on the ramp and reached a main lane
 
     def run(self, agent: str, rng, ask, label: str = "") -> None:
         traci, setting, dt = self.traci, self.setting, self.setting.step_length
@@ -289,6 +295,8 @@ class _Episode:
             lane = road.nearest_slot(x, y)
             out["lane_changes"] += car.lane is not None and lane != car.lane
             car.lane = lane
+            if self.setting.start == "ramp" and lane < self.setting.net.lanes and self.frame.on_corridor(lane, x):
+                self.merged.add(car.name)
             body = road.body_slots(x, y, heading, self.setting.ego_length, self.setting.ego_width)
             out["ego_lane_unseen"] += not body <= self.shadows.lanes_seen(traci, car.name)
             if self.frame.leaving(x, y):   # at the road's end, or the end of the exit it took: leaves
@@ -298,6 +306,7 @@ class _Episode:
         out, cars = self.out, self.left + self.cars
         starts = [c.start_inside for c in cars if c.start_inside is not None]
         out["starts_outside"] = starts.count(False)
+        out["merged"] = len(self.merged)
         out["start_inside"] = all(starts) if starts else None
         out["distance_m"] = float(sum((c.expected[0] if c.expected else c.start_x) - c.start_x for c in cars))
         tallies = [c.guard.tally for c in cars if getattr(c.guard, "tally", None) is not None]
@@ -323,7 +332,7 @@ SUMMED = ("steps", "vehicle_steps", "collisions", "sumo_collisions", "shadow_col
           "at_fault_after_inside", "at_fault_after_outside", "starts_outside", "overrides", "safety_overrides",
           "lane_changes",
           "failsafe_steps", "ego_uncovered", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
-          "traffic_uncovered", "emergency_braking", "teleports", "distance_m")
+          "traffic_uncovered", "emergency_braking", "teleports", "distance_m", "ramp_starts", "merged")
 
 
 def summary(results: list) -> dict:

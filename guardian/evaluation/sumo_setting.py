@@ -40,6 +40,7 @@ class SumoSetting:
     depart_speed: float = 25.0
     guarded: int = 1            # guarded vehicles (each its own guardian and driver; every other vehicle is traffic)
     connection: str = "libsumo"  # libsumo, traci or HOST:PORT (guardian.adapters.sumo.connection)
+    start: str = "main"          # where the guarded vehicle starts: on a main lane, or on the on-ramp (one vehicle)
 
     def __post_init__(self):
         if self.guarded < 1:
@@ -50,6 +51,10 @@ class SumoSetting:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.max_steering >= math.pi / 2:
             raise ConfigError(f"max_steering must be below pi/2, got {self.max_steering}")
+        if self.start not in ("main", "ramp"):
+            raise ConfigError(f"start must be 'main' or 'ramp', got {self.start!r}")
+        if self.start == "ramp" and not (self.net.ramp_at and self.guarded == 1):
+            raise ConfigError("start 'ramp' needs a road with an on-ramp (ramp_at) and one guarded vehicle")
 
 
 def traffic_accel_of(traci) -> float:
@@ -96,10 +101,18 @@ def guarded_names(setting: SumoSetting) -> list:
 
 
 def insert_guarded(traci, setting: SumoSetting, frame: Frame, rng: np.random.Generator) -> bool:
-    """Insert the guarded vehicles at ``depart_speed`` (one on a random main lane at 25-45 % of the road; several on
-    free lanes, evenly spaced over 10-80 % of it); False if SUMO found no room for all of them within 20 s."""
+    """Insert the guarded vehicles at ``depart_speed`` (one on a random main lane at 25-45 % of the road, or on the
+    on-ramp at 20-60 % of it, at most at the ramp's speed; several on free lanes, evenly spaced over 10-80 % of the
+    road); False if SUMO found no room for all of them within 20 s."""
     names, length = guarded_names(setting), setting.net.length
+    speed = setting.depart_speed
     for k, name in enumerate(names):
+        if setting.start == "ramp":
+            speed = min(speed, setting.net.ramp_speed)
+            pos = float(rng.uniform(0.2, 0.6) * traci.lane.getLength(f"{setting.net.ramp}_0"))
+            traci.vehicle.add(name, f"from_{setting.net.ramp}", typeID=EGO, departLane="0", departPos=f"{pos:g}",
+                              departSpeed=f"{speed:g}")
+            continue
         if len(names) == 1:
             index, pos = int(rng.integers(setting.net.lanes)), float(rng.uniform(0.25, 0.45) * length)
             edge, index = frame.lane_at(setting.net.lanes - 1 - index, pos)
@@ -110,13 +123,13 @@ def insert_guarded(traci, setting: SumoSetting, frame: Frame, rng: np.random.Gen
             if frame.lanes_of[edge] > setting.net.lanes:   # not on an acceleration lane: just after it
                 pos, edge = frame.extent[edge][1] + 10.0 + k, frame.edges[frame.edges.index(edge) + 1]
         traci.vehicle.add(name, f"from_{edge}", typeID=EGO, departLane=lane,
-                          departPos=f"{pos - frame.extent[edge][0]:g}", departSpeed=f"{setting.depart_speed:g}")
+                          departPos=f"{pos - frame.extent[edge][0]:g}", departSpeed=f"{speed:g}")
     for _ in range(200):
         traci.simulationStep()
         present = set(traci.vehicle.getIDList())
         for n in names:   # SUMO drives them until all are in: at their insertion speed (SUMO's checks on)
             if n in present:
-                traci.vehicle.setSpeed(n, setting.depart_speed)
+                traci.vehicle.setSpeed(n, speed)
         if all(n in present for n in names):
             for n in names:
                 traci.vehicle.setSpeedMode(n, 0)

@@ -483,3 +483,30 @@ def test_sumos_driver_guarded_causes_no_collision():
         r = run_episode(SHORT, "sumo", seed)
         assert r["inserted"] and r["at_fault"] == 0 and r["guarded_lost"] == 0, r["crashes"]
         assert r["ego_uncovered"] == 0, r
+
+
+def test_a_vehicle_that_starts_on_the_ramp_is_guarded_there_and_counted_when_it_merges():
+    """Started on the on-ramp: SUMO's own driver merges unguarded (and, with its checks off, may crash); guarded it
+    causes no collision, merges when the guardian finds a responsible entry and is otherwise held before the
+    acceleration lane's end, and every start and merge is counted."""
+    ramp, seeds = replace(MERGE, start="ramp"), (2, 3, 4, 5)
+    unguarded = summary([run_episode(ramp, "sumo", seed, guarded=False) for seed in seeds])
+    assert unguarded["ramp_starts"] == 4 and unguarded["merged"] == 4
+    guarded = [run_episode(ramp, "sumo", seed) for seed in seeds]
+    assert [r["merged"] for r in guarded] == [1, 1, 1, 0], guarded   # seed 5: held at the lane's end in 20 s
+    assert guarded[-1]["failsafe_steps"] > 0
+    guarded = summary(guarded)
+    assert guarded["ramp_starts"] == 4 and guarded["at_fault"] == 0 and guarded["guarded_lost"] == 0 and guarded["ego_uncovered"] == 0, guarded
+    main_start = summary([run_episode(MERGE, "sumo", 0)])
+    assert main_start["ramp_starts"] == 0 and main_start["merged"] == 0
+
+
+def test_a_ramp_start_needs_a_ramp_and_one_vehicle():
+    from guardian.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="start 'ramp' needs a road with an on-ramp"):
+        SumoSetting(start="ramp")
+    with pytest.raises(ConfigError, match="one guarded vehicle"):
+        replace(MERGE, start="ramp", guarded=2)
+    with pytest.raises(ConfigError, match="'main' or 'ramp'"):
+        replace(MERGE, start="shoulder")
