@@ -24,16 +24,15 @@ def cmd_serve(args) -> int:
     except ValueError as exc:
         print(f"guardian serve: {exc}", file=sys.stderr)
         return 2
-    # the library is built with at least 2 processes when the cache is cold, whatever --workers says
-    lib = load_library(argparse.Namespace(**{**vars(args), "workers": max(2, args.workers)}))
-    try:
-        if config.workers == 1:
-            server, sock = make_server(lib, config)  # warmed up before the first connection is accepted
-        else:
-            sock = bind(config.host, config.port, config.backlog)
+    try:  # bound first: a busy port is refused at once, not after the sets have loaded
+        sock = bind(config.host, config.port, config.backlog)
     except OSError as exc:
         print(f"guardian serve: cannot listen on {config.host}:{config.port}: {exc}", file=sys.stderr)
         return 2
+    # the library is built with at least 2 processes when the cache is cold, whatever --workers says
+    lib = load_library(argparse.Namespace(**{**vars(args), "workers": max(2, args.workers)}))
+    if config.workers == 1:
+        server, sock = make_server(lib, config, sock=sock)  # warmed up before the first connection is accepted
     host, port = sock.getsockname()[:2]
     url = f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
     info = {"url": url, "workers": config.workers, "node": config.node, "token_required": config.token is not None,

@@ -263,7 +263,8 @@ class Server:
             await asyncio.sleep(SWEEP_PERIOD)
 
 
-def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = True) -> tuple[Server, socket.socket]:
+def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = True,
+                sock: socket.socket | None = None) -> tuple[Server, socket.socket]:
     """One worker of the guardian service and its bound socket (``--workers N`` is ``workers.serve_workers``).
 
     Parameters
@@ -274,6 +275,9 @@ def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = T
         Address, tokens, origins, session TTL and cap, node name and the limits; checked first.
     warm : bool
         Warm the library up first (``warm_up``), so that the first step costs what the others do.
+    sock : socket.socket, optional
+        A socket already bound to the address (``bind``: a command binds first, so that a busy port is refused
+        before the sets load); by default one is bound here.
 
     Returns
     -------
@@ -286,7 +290,7 @@ def make_server(library, config: ServiceConfig = ServiceConfig(), warm: bool = T
     if warm:
         warm_up(library)
     server = Server(library, config, ids=SessionIds.starting_now(config.node))
-    return server, bind(config.host, config.port, config.backlog)
+    return server, sock if sock is not None else bind(config.host, config.port, config.backlog)
 
 
 class ServiceThread:

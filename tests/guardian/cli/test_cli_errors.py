@@ -376,3 +376,22 @@ def test_falsify_human_output_shows_every_figure(monkeypatch, capsys):
     data.pop("seconds")
     assert [v for v in _figures(data) if not _shown(v, text)] == []
     assert "density 2.5" in text and "count=6007" in text
+
+
+def test_serve_refuses_a_busy_port_before_it_loads_the_sets(monkeypatch, capsys):
+    """A port another process holds is refused in one line, at once: the sets (seconds to load, minutes to build)
+    are never touched."""
+    import socket
+
+    import guardian.cli.serve
+
+    def never(*_):
+        raise AssertionError("the sets were loaded before the port was checked")
+
+    monkeypatch.setattr(guardian.cli.serve, "load_library", never)
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen(1)
+        port = held.getsockname()[1]
+        assert main(["serve", "--port", str(port)]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
