@@ -123,7 +123,8 @@ def replay_text(result: dict) -> str:
 
 def cmd_replay(args) -> int:
     from guardian.errors import HighDFormatError, SchedulerError
-    from guardian.highd.rates import ReplayConfig, car_following_params, self_safety_overrides
+    from guardian.highd.rates import ReplayConfig, car_following_params, judge_lane_change, self_safety_overrides
+    from itha.car_following import MaximalSet
     from guardian.highd.replay import replay
 
     if args.input_bounds == "data" and (args.u_min is not None or args.u_max is not None):
@@ -161,8 +162,10 @@ def cmd_replay(args) -> int:
         folder = Path(args.path) if args.path else default_sample()
         rid = recording_ids(folder)[0]
         p = car_following_params(cfg, result["dt"], result["disturbance_bounds"], result["input_bounds"])
+        S = MaximalSet(p)
         result["rerun"] = log_highd_recording(args.rerun, folder if folder.is_dir() else folder.parent, rid, p,
-                                              lambda d: self_safety_overrides(p, d.v, d.h, d.vL, d.u))
+                                              lambda d: self_safety_overrides(p, d.v, d.h, d.vL, d.u),
+                                              lambda e, overapprox: judge_lane_change(p, S, e, overapprox))
     emit(result, args.json, replay_text(result))
     return 0
 

@@ -106,26 +106,34 @@ def responsible(inputs, u: float) -> bool:
     return any(lo <= u <= hi for lo, hi in inputs)
 
 
+def judge_lane_change(p: CarFollowingParams, S: MaximalSet, e, overapprox: str):
+    """The inputs of U that make lane change ``e`` ρ̂-responsible (Definition 22, (7.5)), or None when a speed in its
+    snapshot (or the ego's recorded next speed) lies outside ``[0, v_max]``: outside the state space, not judged."""
+    if np.any(e.v < 0) or np.any(e.v > p.v_max) or not 0 <= e.v[e.ego] + p.dt * e.u <= p.v_max:
+        return None
+    prm = HighwayParams(car_following=p, n_lanes=e.n_lanes, n_cars=len(e.p) - 1, ego_lane=int(e.lane[e.ego]))
+    announced = {}
+    if overapprox == "ordered":  # Example 8: ahead first; aligned, slower (lower) lane first
+        key = [(-e.p[k], e.lane[k], k) for k in range(len(e.p))]
+        me = key[e.ego]
+        shift_name = {1: "left", -1: "right", 0: "stay"}
+        announced = {k: shift_name.get(int(e.shift[k]), "stay") for k in range(len(e.p))
+                     if k != e.ego and key[k] < me and int(e.shift[k]) in shift_name}
+    sup = EgoSupervisor(prm, S, overapprox)
+    return sup.lane_change([float(a) for a in e.p], [float(a) for a in e.v], [int(a) for a in e.lane], e.ego,
+                           e.trigger, announced, lengths=[float(a) for a in e.length]).inputs
+
+
 def responsibility_overrides(p: CarFollowingParams, events, overapprox: str) -> LaneChangeCounts:
     S = MaximalSet(p)
     overrides = no_input = outside = 0
     for e in events:
-        if np.any(e.v < 0) or np.any(e.v > p.v_max) or not 0 <= e.v[e.ego] + p.dt * e.u <= p.v_max:
+        inputs = judge_lane_change(p, S, e, overapprox)
+        if inputs is None:  # outside the state space: counted against us
             overrides, no_input, outside = overrides + 1, no_input + 1, outside + 1
             continue
-        prm = HighwayParams(car_following=p, n_lanes=e.n_lanes, n_cars=len(e.p) - 1, ego_lane=int(e.lane[e.ego]))
-        announced = {}
-        if overapprox == "ordered":  # Example 8: ahead first; aligned, slower (lower) lane first
-            key = [(-e.p[k], e.lane[k], k) for k in range(len(e.p))]
-            me = key[e.ego]
-            shift_name = {1: "left", -1: "right", 0: "stay"}
-            announced = {k: shift_name.get(int(e.shift[k]), "stay") for k in range(len(e.p))
-                         if k != e.ego and key[k] < me and int(e.shift[k]) in shift_name}
-        sup = EgoSupervisor(prm, S, overapprox)
-        verdict = sup.lane_change([float(a) for a in e.p], [float(a) for a in e.v], [int(a) for a in e.lane], e.ego,
-                                  e.trigger, announced, lengths=[float(a) for a in e.length])
-        overrides += not responsible(verdict.inputs, float(e.u))
-        no_input += not verdict.inputs
+        overrides += not responsible(inputs, float(e.u))
+        no_input += not inputs
     return LaneChangeCounts(overrides, no_input, outside)
 
 

@@ -178,13 +178,16 @@ def _log_vehicle_series(rec, data, params) -> None:
                                  columns=rr.Scalars.columns(scalars=vals[keep]))
 
 
-def log_highd_recording(path: Path, folder: Path, recording_id: int, params, overrides_of) -> dict:
-    """One recording: lane markings, every vehicle per frame (red where overridden), per-vehicle time
-    series of speed, gap, input and the admissible input interval, override and lane-change events; it
-    opens with ``highd_blueprint``.
+def log_highd_recording(path: Path, folder: Path, recording_id: int, params, overrides_of, judge=None) -> dict:
+    """One recording: lane markings, every vehicle per frame (red where its input is not self-safe, amber where its
+    lane change is not ρ̂-responsible), per-vehicle time series of speed, gap, input and the admissible input
+    interval, and the events; it opens with ``highd_blueprint``.
 
-    ``overrides_of(data)`` returns a boolean per data point of ``guardian.highd.convert.to_itha``;
-    vehicles with an override at a frame are drawn red and listed in ``events/override``.
+    ``overrides_of(data)`` returns a boolean per data point of ``guardian.highd.convert.to_itha``; those vehicles
+    are drawn red and listed in ``events/override``. ``judge(event, overapprox)`` returns the inputs that make a
+    lane change ρ̂-responsible (None: outside the state space); each lane change of the recording (held out or
+    not) is then listed in ``events/lane_change`` with its recorded input against the responsible inputs of the
+    trivial and the ordered ρ̂, as a warning when the recorded input is not among them.
     """
     from guardian.highd.convert import to_itha
     from guardian.highd.reader import read_recording
@@ -193,6 +196,8 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
     data = to_itha(rec_data)
     over = overrides_of(data)
     flagged = {(int(v), int(f)) for v, f in zip(data.vehicle[over], data.frame[over])}
+    verdicts = [(e, _lane_change_verdict(e, judge)) for e in data.lane_changes]
+    refused = {(e.vehicle, e.frame) for e, (_, bad) in verdicts if bad}
     rec = rr.RecordingStream("guardian-highd")
     save_to(rec, path, highd_blueprint())
     _log_vehicle_series(rec, data, params)
@@ -204,18 +209,43 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
         rec.set_time("frame", sequence=int(frame))
         ids = rows["id"].to_numpy()
         red = np.array([(int(i), int(frame)) in flagged for i in ids])
+        amber = np.array([(int(i), int(frame)) in refused for i in ids])
         centers = np.column_stack([rows["x"] + rows["width"] / 2, rows["y"] + rows["height"] / 2])
         half = np.column_stack([rows["width"] / 2, rows["height"] / 2])
-        colors = np.where(red[:, None], [[230, 40, 40]], [[60, 120, 220]])
+        colors = np.where(red[:, None], [[230, 40, 40]], np.where(amber[:, None], [[240, 170, 30]], [[60, 120, 220]]))
         rec.log("road/vehicles", rr.Boxes2D(centers=centers, half_sizes=half, colors=colors,
                                             labels=[str(i) for i in ids]))
         for i in ids[red]:
             rec.log("events/override", rr.TextLog(f"frame {frame}: vehicle {i} input not self-safe", level="WARN"))
-    for e in data.lane_changes:
+    for e, (text, bad) in verdicts:
         rec.set_time("frame", sequence=e.frame)
-        rec.log("events/lane_change", rr.TextLog(f"frame {e.frame}: vehicle {e.vehicle} changes {e.trigger}"))
+        rec.log("events/lane_change", rr.TextLog(text, level="WARN" if bad else "INFO"))
     rec.flush()
-    return {"frames": int(t["frame"].nunique()), "overrides": int(over.sum()), "path": str(path)}
+    return {"frames": int(t["frame"].nunique()), "overrides": int(over.sum()), "lane_changes": len(verdicts),
+            "lane_changes_not_responsible": len(refused), "path": str(path)}
+
+
+def _ranges(inputs) -> str:
+    return " ∪ ".join(f"[{lo:.2f}, {hi:.2f}]" for lo, hi in inputs) if inputs else "none"
+
+
+def _lane_change_verdict(e, judge) -> tuple[str, bool]:
+    """The event's line and whether its recorded input is not responsible under some ρ̂."""
+    head = f"frame {e.frame}: vehicle {e.vehicle} changes {e.trigger}"
+    if judge is None:
+        return head, False
+    parts, bad = [], False
+    for overapprox in ("trivial", "ordered"):
+        inputs = judge(e, overapprox)
+        if inputs is None:
+            parts.append(f"{overapprox}: a speed outside the state space, not responsible")
+            bad = True
+            continue
+        ok = any(lo <= e.u <= hi for lo, hi in inputs)
+        bad |= not ok
+        parts.append(f"{overapprox}: responsible inputs {_ranges(inputs)} m/s^2, "
+                     f"{'responsible' if ok else 'NOT responsible'}")
+    return f"{head}; recorded input {e.u:+.2f} m/s^2; " + "; ".join(parts), bad
 
 
 # ---- highway-env environments under the Guardian ----------------------------------------------------

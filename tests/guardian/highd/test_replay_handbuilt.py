@@ -63,3 +63,19 @@ def test_a_slightly_negative_speed_is_an_override_never_judged_safe(tmp_path, ca
     still = _replay(_recording(tmp_path / "still", 5.0, 0.0), capsys)
     assert creeping["test_data_points"] == still["test_data_points"]
     assert creeping["overrides"]["self_safety"] - still["overrides"]["self_safety"] == 39
+
+
+def test_the_rerun_recording_shows_the_lane_change_judged_on_its_recorded_input(tmp_path, capsys):
+    """``replay --rerun``: the lane change is listed with its recorded input against the responsible inputs of
+    each ρ̂ and drawn amber; a responsible one is listed as such."""
+    from guardian.recording.rerun import read_texts
+
+    for gap, verdict in ((4.35, "NOT responsible"), (5.0, "responsible")):
+        rrd = tmp_path / f"{gap}.rrd"
+        assert main(["replay", str(_recording(tmp_path / str(gap), gap, 0.0)), "--rerun", str(rrd), "--json",
+                     "--no-cache"]) == 0
+        result = json.loads(capsys.readouterr().out)
+        (line,) = read_texts(rrd, "/events/lane_change")
+        assert "changes right; recorded input +0.00 m/s^2" in line, line
+        assert "trivial: responsible inputs [-6.00, " in line and line.endswith(f"m/s^2, {verdict}"), line
+        assert result["rerun"]["lane_changes_not_responsible"] == (verdict != "responsible")
