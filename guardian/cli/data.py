@@ -46,7 +46,7 @@ def cmd_data_convert_commonroad(args) -> int:
     progress = progress_bar("data convert commonroad")
     try:
         for k, f in enumerate(files):
-            done.append(convert_commonroad(f, args.out, args.first_id + k))
+            done.append(convert_commonroad(f, args.out, args.first_id + k, time_step=args.time_step))
             progress(k + 1, len(files))
     except HighDFormatError as exc:
         return usage_error(args, str(exc))
@@ -210,6 +210,9 @@ def add_commands(sub) -> None:
     p.add_argument("--out", type=output_folder, required=True, help="the folder the recordings are written to")
     p.add_argument("--first-id", type=count(1), default=1,
                    help="the first recording's id (NN in the file names; the next file gets the next id)")
+    p.add_argument("--time-step", type=positive_number, default=None, metavar="S",
+                   help="convert with this time step instead of the file's timeStepSize (each is checked against "
+                        "the vehicles' motion; a file whose motion says another step is refused, naming it)")
     p.set_defaults(func=cmd_data_convert_commonroad, on_interrupt="the recordings written so far are complete")
     p = sub.add_parser("replay", help="override rates of the ITHA guardian on HighD-format data (Table 7.2)",
                        parents=[out])

@@ -20,7 +20,10 @@ is its business. One carriageway, lanes from lanelets:
 * Neighbours: per frame and lane, the nearest front ahead and behind; ``space_headway`` front to front,
   ``time_headway`` = space_headway / speed (0 at standstill).
 * The time step comes from the file: ``frameRate`` = 1 / timeStepSize, refused unless that is a whole number;
-  frames are CommonRoad's time steps. Vehicles: CAR, TAXI, PRIORITY_VEHICLE as Car; TRUCK, BUS as Truck;
+  frames are CommonRoad's time steps. It is checked against the motion (the median, over consecutive states at
+  1 m/s or more, of the distance moved over the mean speed): more than 10 % off, the file is refused, naming
+  both (published highD-derived files declare 0.1 s where the motion says 0.2 s); ``time_step`` (``--time-step``)
+  converts with another step, checked the same way. Vehicles: CAR, TAXI, PRIORITY_VEHICLE as Car; TRUCK, BUS as Truck;
   MOTORCYCLE; a rectangle each. Any other obstacle type or shape, a dynamic obstacle without a trajectory,
   is refused naming it. Static obstacles are counted and left out.
 * recordingMeta's ``month`` and ``weekDay`` come from the file's ``date`` attribute (when the scenario was
@@ -43,6 +46,7 @@ from guardian.highd.trajectories import longest_runs, neighbours, write_highd
 CLASSES = {"CAR": "Car", "TAXI": "Car", "PRIORITY_VEHICLE": "Car", "TRUCK": "Truck", "BUS": "Truck",
            "MOTORCYCLE": "Motorcycle"}
 RECTANGLES = ("Rectangle", "RectObstacleShape")   # commonroad-io before 2025 and after
+STEP_TOLERANCE = 0.1   # the motion's step may differ this much (relative) from the declared one: noise, rounding
 
 
 def _open(path: Path):
@@ -61,11 +65,38 @@ def _open(path: Path):
     return scenario
 
 
-def _frame_rate(path: Path, step: float) -> int:
+def _frame_rate(path: Path, step: float, what: str) -> int:
     rate = round(1.0 / step)
     if rate < 1 or abs(rate * step - 1.0) > 1e-9:
-        raise HighDFormatError(f"{path}: timeStepSize {step:g} s is not 1/n s: HighD's frameRate is a whole number")
+        raise HighDFormatError(f"{path}: {what} {step:g} s is not 1/n s: HighD's frameRate is a whole number")
     return rate
+
+
+def motion_step(raw: pd.DataFrame) -> float | None:
+    """The time step the vehicles' motion implies: the median over consecutive states (at least 1 m/s) of the
+    distance moved over the mean of the two speeds; None when no vehicle moves."""
+    raw = raw.sort_values(["vehicle", "frame"])
+    same = (raw["vehicle"].to_numpy()[1:] == raw["vehicle"].to_numpy()[:-1]) & (np.diff(raw["frame"].to_numpy()) == 1)
+    xy = raw[["x", "y"]].to_numpy()
+    moved = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    speed = np.abs(raw["velocity"].to_numpy())
+    mean = (speed[1:] + speed[:-1]) / 2
+    ok = same & (mean >= 1.0)
+    return float(np.median(moved[ok] / mean[ok])) if ok.any() else None
+
+
+def _checked_step(path: Path, declared: float, given: float | None, raw: pd.DataFrame) -> tuple[float, dict]:
+    """The time step to convert with: the file's, or ``given``; refused when the motion says otherwise."""
+    step = declared if given is None else given
+    implied = motion_step(raw)
+    check = {"declared": declared, "used": step, "motion": None if implied is None else round(implied, 4)}
+    if implied is not None and abs(implied / step - 1.0) > STEP_TOLERANCE:
+        hint = (f"give the time step the motion says (guardian data convert commonroad --time-step {implied:.2g})"
+                if given is None else "the step given does not fit either")
+        raise HighDFormatError(f"{path}: timeStepSize {declared:g} s{'' if given is None else f' (given {given:g} s)'}, "
+                               f"but the vehicles move as if a step were {implied:.4g} s (median distance over speed "
+                               f"between states): {hint}")
+    return step, check
 
 
 def lane_numbers(path: Path, network) -> dict:
@@ -206,12 +237,13 @@ def _lanes_of(network, lanes: dict, line: np.ndarray, xy: np.ndarray) -> np.ndar
     return out
 
 
-def convert_commonroad(path: Path, out: Path, recording_id: int = 1, location_id: int = 0) -> dict:
+def convert_commonroad(path: Path, out: Path, recording_id: int = 1, location_id: int = 0,
+                       time_step: float | None = None) -> dict:
     """Convert a CommonRoad scenario's recorded vehicles to one HighD recording (the module docstring has
-    every choice). Returns what was converted and what was dropped, with counts."""
+    every choice). ``time_step`` replaces the file's ``timeStepSize`` (both are checked against the motion).
+    Returns what was converted and what was dropped, with counts."""
     path = Path(path)
     scenario = _open(path)
-    frame_rate = _frame_rate(path, float(scenario.dt))
     network = scenario.lanelet_network
     lanes = lane_numbers(path, network)
     line = reference_line(path, network, lanes)
@@ -222,6 +254,10 @@ def convert_commonroad(path: Path, out: Path, recording_id: int = 1, location_id
     if not rows:
         raise HighDFormatError(f"{path}: no dynamic obstacle: nothing was recorded")
     raw = pd.DataFrame(rows, columns=["vehicle", "frame", "x", "y", "heading", "velocity", "acceleration"])
+    if time_step is None:
+        _frame_rate(path, float(scenario.dt), "timeStepSize")
+    step, step_check = _checked_step(path, float(scenario.dt), time_step, raw)
+    frame_rate = _frame_rate(path, step, "the time step given")
     dims = {o.obstacle_id: (o.obstacle_shape.length, o.obstacle_shape.width) for o in scenario.dynamic_obstacles}
     xy = raw[["x", "y"]].to_numpy()
     s, right, road_heading = project(line, xy)
@@ -250,6 +286,7 @@ def convert_commonroad(path: Path, out: Path, recording_id: int = 1, location_id
     report = {"states_on_no_lanelet": report.pop("ramp_rows_dropped"),
               "vehicles_on_no_lanelet": report.pop("vehicles_only_on_ramps"), **report}
     return {"source": str(path), "out": str(out), "files": files, "benchmark_id": str(scenario.scenario_id),
-            "frame_rate": frame_rate, "lanes": n_lanes, "lanelets": len(lanes), "vehicles": int(t["vehicle"].nunique()),
+            "frame_rate": frame_rate, "time_step": step_check, "lanes": n_lanes, "lanelets": len(lanes),
+            "vehicles": int(t["vehicle"].nunique()),
             "rows": int(len(t)), "static_obstacles_left_out": len(scenario.static_obstacles),
             "accelerations_from_speed_differences": differenced, "start": start_source, **report, **written}

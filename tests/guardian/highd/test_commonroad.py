@@ -40,9 +40,9 @@ def _lanelet(lid, lane, angle, left, right, opposite=False):
                    adjacent_right=right, adjacent_right_same_direction=True if right else None)
 
 
-def _vehicle(oid, x0, y0, v, angle, steps=30, vy=0.0, kind=ObstacleType.CAR, length=4.5):
+def _vehicle(oid, x0, y0, v, angle, steps=30, vy=0.0, kind=ObstacleType.CAR, length=4.5, step=0.1):
     shape = RectObstacleShape(1.8, length)
-    pos = [_rotate([[x0 + v * 0.1 * k, y0 + vy * 0.1 * k]], angle)[0] for k in range(steps)]
+    pos = [_rotate([[x0 + v * step * k, y0 + vy * step * k]], angle)[0] for k in range(steps)]
     heading = angle + np.arctan2(vy, v)
     speed = float(np.hypot(v, vy))
     states = [KSState(time_step=k, position=pos[k], orientation=heading, velocity=speed, steering_angle=0.0)
@@ -127,6 +127,21 @@ def test_what_cannot_be_mapped_is_refused_naming_the_file_and_element(tmp_path, 
     with pytest.raises(HighDFormatError) as err:
         convert_commonroad(path, tmp_path / "out")
     assert str(path) in str(err.value) and what in str(err.value)
+
+
+def test_the_time_step_is_checked_against_the_motion(tmp_path):
+    """A file that declares 0.1 s while its vehicles move as if a step were 0.2 s (as published highD-derived files
+    do) is refused naming both; converted with the motion's step it gives 5 Hz; a step given that fits neither is
+    refused too."""
+    cars = [_vehicle(10 + k, 40.0 * k, -5.25, 20.0, 0.0, step=0.2) for k in range(3)]
+    path = _scenario(tmp_path / "s.xml", vehicles=cars)
+    with pytest.raises(HighDFormatError, match=r"timeStepSize 0.1 s, but the vehicles move as if a step were 0.2 s"):
+        convert_commonroad(path, tmp_path / "out")
+    report = convert_commonroad(path, tmp_path / "out", time_step=0.2)
+    assert report["frame_rate"] == 5 and report["time_step"] == {"declared": 0.1, "used": 0.2, "motion": 0.2}
+    assert pd.read_csv(tmp_path / "out" / "01_recordingMeta.csv")["frameRate"][0] == 5
+    with pytest.raises(HighDFormatError, match="given 0.5 s.*the step given does not fit either"):
+        convert_commonroad(path, tmp_path / "out", time_step=0.5)
 
 
 def test_a_folder_converts_through_the_command_and_replays(tmp_path, capsys):
