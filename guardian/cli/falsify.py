@@ -39,9 +39,8 @@ def promise_broken(result: dict) -> bool:
 
 
 def cmd_falsify(args) -> int:
-    from guardian.cli.rollout import replay_command
     from guardian.errors import SchedulerError
-    from guardian.evaluation.campaign import matrix, run_campaign
+    from guardian.evaluation.campaign import Campaign, campaign_result, matrix, run_campaign
 
     if args.scheduler and args.workers is not None:
         return usage_error(args, "--workers does not apply with --scheduler (the Dask cluster has its own workers)")
@@ -51,20 +50,32 @@ def cmd_falsify(args) -> int:
         cells = [c for c in cells if c.agent in args.agent]
         if not cells:
             return usage_error(args, f"no cell drives agent(s) {', '.join(args.agent)}")
+    camp = Campaign()
     try:
         result = run_campaign(cells, args.episodes, args.seed, workers, args.scheduler, args.cache_dir,
-                              progress_bar("falsify"))
+                              progress_bar("falsify"), camp=camp)
     except SchedulerError as exc:
         return usage_error(args, f"--scheduler: {exc}")
+    except KeyboardInterrupt:  # the table of the episodes that finished, then the one line and 130 / 143
+        _report(args, campaign_result(camp, cells, args.episodes, workers, args.scheduler, interrupted=True), workers)
+        raise
+    return _report(args, result, workers)
+
+
+def _report(args, result: dict, workers) -> int:
+    from guardian.cli.rollout import replay_command
+
     failures = [dict({k: v for k, v in f.items() if k != "replay"}, command=replay_command(f["replay"]))
                 for f in result["failures"]]
     result = dict(result, failures=sorted(failures, key=lambda f: (f["kind"], f["command"])))
     spread = f"on the Dask scheduler {args.scheduler}" if args.scheduler else f"{workers} worker(s)"
+    stopped = " (interrupted: the episodes that finished)" if result.get("interrupted") else ""
     lines = [f"{result['episodes']} episodes ({result['cells']} cells x {args.episodes}), "
-             f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, {spread}", "",
-             table([dict(result["totals"], group="all")], "campaign"), "",
-             table(result["by_env"], "environment"), "", table(result["by_agent"], "agent"), "",
-             table(result["by_setting"], "setting"), ""]
+             f"{'guarded' if not args.no_guardian else 'unguarded'}, {result['seconds']} s, {spread}{stopped}", ""]
+    if result["episodes"]:
+        lines += [table([dict(result["totals"], group="all")], "campaign"), "",
+                  table(result["by_env"], "environment"), "", table(result["by_agent"], "agent"), "",
+                  table(result["by_setting"], "setting"), ""]
     if result["failures"]:
         lines.append("failures (each replays alone):")
         lines += [f"  {f['kind']} ({_said(f)}): {f['command']}" for f in result["failures"]]

@@ -189,6 +189,7 @@ class Campaign:
     rows: dict = field(default_factory=dict)
     failures: list = field(default_factory=list)
     episodes: int = 0
+    started: float | None = None   # time.perf_counter() when the run began
 
     def add(self, cell: Cell, seed: int, r: dict) -> None:
         self.episodes += 1
@@ -230,7 +231,7 @@ class Campaign:
 
 
 def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None = 1, scheduler: str | None = None,
-                 cache_dir=None, progress=None) -> dict:
+                 cache_dir=None, progress=None, camp: Campaign | None = None) -> dict:
     """Run ``episodes`` episodes of every cell; cell ``k`` episode ``i`` has seed ``seed + 1000 k + i``.
 
     Parameters
@@ -248,6 +249,9 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None 
         The set cache the workers load the overtake libraries from.
     progress : callable, optional
         ``progress(done, total)`` after each chunk of episodes.
+    camp : Campaign, optional
+        Where the episodes are counted as they finish (a fresh one by default): after an interruption it holds
+        the finished episodes, for ``campaign_result``.
 
     Returns
     -------
@@ -263,7 +267,8 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None 
         if any(c.env == OVERTAKE_ENV for c in cells):  # build the sets once, before the workers need them
             for traffic in {c.traffic for c in cells if c.env == OVERTAKE_ENV}:
                 _library(traffic, cache)
-        camp, done, t0 = Campaign(), 0, time.perf_counter()
+        camp, done, t0 = Campaign() if camp is None else camp, 0, time.perf_counter()
+        camp.started = t0
         running = {k: pool.submit(_chunk, cell, seeds, cache) for k, (cell, seeds) in enumerate(jobs)}
         for k, results in pool.as_completed(running):
             cell = jobs[k][0]
@@ -272,11 +277,19 @@ def run_campaign(cells: list, episodes: int, seed: int = 0, workers: int | None 
             done += len(results)
             if progress:
                 progress(done, total)
-    return {"episodes": camp.episodes, "seconds": round(time.perf_counter() - t0, 1), "workers": workers,
+    return campaign_result(camp, cells, episodes, workers, scheduler)
+
+
+def campaign_result(camp: Campaign, cells: list, episodes: int, workers, scheduler, interrupted: bool = False) -> dict:
+    """The campaign's record from what ``camp`` counted (``interrupted``: the episodes that finished before a
+    signal stopped the run; the cells it did not reach are absent from the tables)."""
+    seconds = round(time.perf_counter() - camp.started, 1) if camp.started is not None else 0.0
+    return {"episodes": camp.episodes, "seconds": seconds, "workers": workers,
             "scheduler": scheduler, "cells": len(cells), "episodes_per_cell": episodes,
             "totals": camp.table("all")[0] if camp.episodes else {}, "by_env": camp.table("env"),
             "by_agent": camp.table("agent"), "by_setting": camp.table("setting"),
-            "failures": sorted(camp.failures, key=lambda f: (f["kind"], json.dumps(f["replay"], sort_keys=True)))}
+            "failures": sorted(camp.failures, key=lambda f: (f["kind"], json.dumps(f["replay"], sort_keys=True))),
+            **({"interrupted": True} if interrupted else {})}
 
 
 CHUNK = 5  # episodes per job: few enough to balance the workers, many enough to reuse a loaded library

@@ -193,7 +193,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def _interrupt(argv, cache, wait_for, how, signum):
+def _interrupt(argv, cache, wait_for, how, signum, keep_stdout=False):
     env = {**os.environ, "GUARDIAN_CACHE_DIR": str(cache), "PYTHONUNBUFFERED": "1"}
     # SIGINT's default action, as at a terminal: a suite started in the background (``cmd &``) ignores SIGINT,
     # and Python then installs no Ctrl-C handler in the children it starts
@@ -212,7 +212,7 @@ def _interrupt(argv, cache, wait_for, how, signum):
         t0 = time.perf_counter()
         out, err = proc.communicate(timeout=20)  # the work itself would take minutes
         stopped = time.perf_counter() - t0
-        return proc.returncode, err, workers, stopped
+        return proc.returncode, ((out, "".join(seen) + err) if keep_stdout else err), workers, stopped
     finally:
         if proc.poll() is None:  # the test failed: leave nothing running
             os.killpg(proc.pid, signal.SIGKILL)
@@ -255,6 +255,19 @@ def test_rcis_certify_stops_at_once(library, cache_dir, tmp_path, how, signum, c
     assert err.strip().splitlines()[-1].startswith(f"guardian rcis certify: interrupted by {signal.Signals(signum).name}")
     assert stopped < 10, stopped
     assert workers and not any(_alive(w) for w in workers)
+
+
+def test_an_interrupted_campaign_prints_the_table_of_the_episodes_that_finished(tmp_path):
+    """SIGTERM after the first episodes: the tables of what finished (with their failures) are printed, then the
+    one line and exit 143; nothing of the finished work is thrown away."""
+    rc, err, _, _ = _interrupt(["falsify", "--only", "roads", "--agent", "random", "--episodes", "2", "--workers", "1"],
+                               tmp_path, "[falsify] 2/", "pid", signal.SIGTERM, keep_stdout=True)
+    out, err = err
+    assert rc == 143 and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "guardian falsify: interrupted by SIGTERM"
+    first = out.splitlines()[0]
+    assert "(interrupted: the episodes that finished)" in first and not first.startswith("0 episodes"), out
+    assert "campaign  episodes" in out
 
 
 def _fail_cautious(name, params, settings, seed, quiet):
