@@ -139,7 +139,7 @@ def cmd_replay(args) -> int:
                                  f"and to speed up), got --u-min {u_min:g} --u-max {u_max:g}")
     try:
         cfg = ReplayConfig(seed=args.seed, h_min=args.h_min, v_max=args.v_max, input_bounds=args.input_bounds,
-                           u_min=u_min, u_max=u_max,
+                           u_min=u_min, u_max=u_max, frame_step=args.frame_step,
                            plausibility=not args.no_plausibility)
     except ValueError as exc:
         return usage_error(args, str(exc))
@@ -165,7 +165,8 @@ def cmd_replay(args) -> int:
         S = MaximalSet(p)
         result["rerun"] = log_highd_recording(args.rerun, folder if folder.is_dir() else folder.parent, rid, p,
                                               lambda d: self_safety_overrides(p, d.v, d.h, d.vL, d.u),
-                                              lambda e, overapprox: judge_lane_change(p, S, e, overapprox))
+                                              lambda e, overapprox: judge_lane_change(p, S, e, overapprox),
+                                              frame_step=cfg.frame_step)
     emit(result, args.json, replay_text(result))
     return 0
 
@@ -229,6 +230,9 @@ def add_commands(sub) -> None:
     p.add_argument("--v-max", type=positive_number, default=60.0,
                    help="the model's top speed (m/s): a recording with a faster vehicle is refused, naming it "
                         "(default %(default)g)")
+    p.add_argument("--frame-step", type=count(1), default=1, metavar="K",
+                   help="use every K-th frame: the data at frameRate / K (K must divide it; highD's 25 Hz with K = 5 is "
+                        "the 5 Hz of highD-derived CommonRoad scenarios) (default 1)")
     p.add_argument("--input-bounds", choices=["fixed", "data"], default="fixed",
                    help="U from --u-min/--u-max, or the training inputs' quantiles (per context with --contexts)")
     p.add_argument("--rerun", type=output_file, default=None,

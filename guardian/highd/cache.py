@@ -41,7 +41,7 @@ import numpy as np
 
 from guardian.highd.convert import ITHAData, LaneChange, to_itha
 from guardian.highd.files import recording_files
-from guardian.highd.reader import read_recording
+from guardian.highd.reader import read_recording, subsample
 from guardian.highd.schema import FILES, file_name
 
 _CODE_FILES = ("reader.py", "numeric_csv.py", "schema.py", "convert.py", "cache.py")
@@ -73,9 +73,12 @@ def source_fingerprint(path: Path) -> dict:
     return {"path": str(path), "size": st.st_size, "mtime_ns": st.st_mtime_ns, "sampled_sha256": h.hexdigest()}
 
 
-def _request(paths: dict, plausibility: bool) -> dict:
-    return {"code": code_version(), "plausibility": plausibility,
-            "sources": {kind: source_fingerprint(p) for kind, p in sorted(paths.items())}}
+def _request(paths: dict, plausibility: bool, frame_step: int = 1) -> dict:
+    request = {"code": code_version(), "plausibility": plausibility,
+               "sources": {kind: source_fingerprint(p) for kind, p in sorted(paths.items())}}
+    if frame_step != 1:   # the key of a full-rate view stays what it was
+        request["frame_step"] = frame_step
+    return request
 
 
 def _key(request: dict) -> str:
@@ -87,7 +90,7 @@ _EVENT_ARRAYS = ("p", "v", "lane", "length", "shift")
 
 
 def load_itha_view(folder: Path, recording_id: int, plausibility: bool = True,
-                   cache_dir: Path | None = None) -> tuple[ITHAData, np.ndarray, bool]:
+                   cache_dir: Path | None = None, frame_step: int = 1) -> tuple[ITHAData, np.ndarray, bool]:
     """The ITHA view of a recording (``to_itha``) and its vehicle ids, from the cache or computed.
 
     Parameters
@@ -99,6 +102,8 @@ def load_itha_view(folder: Path, recording_id: int, plausibility: bool = True,
         As ``read_recording``; part of the key.
     cache_dir : path, optional
         The cache folder; None reads without a cache.
+    frame_step : int
+        View every ``frame_step``-th frame (``reader.subsample``); part of the key.
 
     Returns
     -------
@@ -112,7 +117,7 @@ def load_itha_view(folder: Path, recording_id: int, plausibility: bool = True,
         From ``read_recording``; a cached entry was valid when it was stored.
     """
     folder = Path(folder)
-    entry, request = _entry(folder, recording_id, plausibility, cache_dir)
+    entry, request = _entry(folder, recording_id, plausibility, cache_dir, frame_step)
     if entry is not None and entry.is_dir():
         try:
             stored = json.loads((entry / "entry.json").read_text())
@@ -123,7 +128,7 @@ def load_itha_view(folder: Path, recording_id: int, plausibility: bool = True,
             print(f"guardian: refusing the HighD cache entry {entry}: {exc}; reading recording {recording_id} "
                   f"from its CSV files", file=sys.stderr)
             shutil.rmtree(entry, ignore_errors=True)
-    rec = read_recording(folder, recording_id, plausibility)
+    rec = subsample(read_recording(folder, recording_id, plausibility), frame_step)
     data = to_itha(rec)
     vehicles = rec.tracks_meta["id"].to_numpy()
     if entry is not None:
@@ -183,12 +188,12 @@ def _read_view(path: Path, recording_id: int) -> tuple[ITHAData, np.ndarray]:
     return data, a["vehicles"]
 
 
-def _entry(folder: Path, recording_id: int, plausibility: bool, cache_dir):
+def _entry(folder: Path, recording_id: int, plausibility: bool, cache_dir, frame_step: int = 1):
     """The cache entry folder and the request; (None, None) without a cache or when a file is missing
     (``read_recording`` then names it)."""
     found = recording_files(folder).get(recording_id, {})
     paths = {kind: found.get(kind, folder / file_name(recording_id, kind)) for kind in FILES}
     if cache_dir is None or not all(p.is_file() for p in paths.values()):
         return None, None
-    request = _request(paths, plausibility)
+    request = _request(paths, plausibility, frame_step)
     return Path(cache_dir) / _key(request), request

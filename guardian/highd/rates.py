@@ -30,6 +30,7 @@ class ReplayConfig:
     v_max: float = 60.0     # m/s; a speed above it is refused as outside the model
     input_bounds: str = "fixed"  # "fixed": U = [u_min, u_max]; "data": the training inputs' order statistics
     plausibility: bool = True    # the reader's plausibility rules (schema.PLAUSIBILITY); off: --no-plausibility
+    frame_step: int = 1          # every k-th frame: the data at frameRate / k (the time step is an open choice)
 
     def __post_init__(self):
         if self.input_bounds not in ("fixed", "data"):
@@ -38,6 +39,8 @@ class ReplayConfig:
             raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
         if not self.u_min < 0 < self.u_max:  # as CarFollowingParams: the ego must be able to brake
             raise ValueError(f"need u_min < 0 < u_max, got u_min {self.u_min}, u_max {self.u_max}")
+        if not (isinstance(self.frame_step, int) and self.frame_step >= 1):
+            raise ValueError(f"frame_step must be a whole number >= 1, got {self.frame_step!r}")
         for name in ("h_min", "v_max"):
             if not 0 < getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be positive and finite, got {getattr(self, name)}")

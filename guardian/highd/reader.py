@@ -9,7 +9,7 @@ on the other carriageway. Nothing is dropped, clipped or guessed.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -418,3 +418,24 @@ def _check_tracks(path: Path, rec: Recording) -> np.ndarray:
             raise HighDFormatError(f"{path}: line {line_of(path, r)}, column {c!r}: vehicle {col[r]} is not in "
                                    f"{file_name(rec.id, 'tracksMeta')}")
     return direction
+
+
+def subsample(rec: Recording, step: int) -> Recording:
+    """Every ``step``-th frame of the recording (counted from its first), renumbered 1, 2, ...: the same traffic seen
+    at ``frameRate / step`` Hz; refused unless ``step`` divides the frame rate (HighD's frameRate is whole)."""
+    if step == 1:
+        return rec
+    if step < 1 or rec.frame_rate % step:
+        raise HighDFormatError(f"recording {rec.id}: a frame step of {step} does not divide its frame rate "
+                               f"{rec.frame_rate} Hz")
+    t = rec.tracks
+    first = int(t["frame"].min())
+    t = t[(t["frame"] - first) % step == 0].copy()
+    t["frame"] = (t["frame"] - first) // step + 1
+    g = t.groupby("id")["frame"]
+    meta = rec.tracks_meta[rec.tracks_meta["id"].isin(t["id"].unique())].copy()
+    ids = meta["id"]
+    meta["initialFrame"], meta["finalFrame"] = ids.map(g.min()).to_numpy(), ids.map(g.max()).to_numpy()
+    meta["numFrames"] = ids.map(g.size()).to_numpy()
+    return replace(rec, meta={**rec.meta, "frameRate": rec.frame_rate // step}, tracks_meta=meta.reset_index(drop=True),
+                   tracks=t.reset_index(drop=True), paths={})

@@ -78,8 +78,8 @@ class RecordingPart:
 
 def process_recording(folder: str, rid: int, seed: int, test_fraction: float, v_max: float,
                       keep_inputs: bool = True, keep_contexts: bool = True, plausibility: bool = True,
-                      cache_dir: str | None = None) -> RecordingPart:
-    data, vehicle_ids, from_cache = load_itha_view(Path(folder), rid, plausibility, cache_dir)
+                      cache_dir: str | None = None, frame_step: int = 1) -> RecordingPart:
+    data, vehicle_ids, from_cache = load_itha_view(Path(folder), rid, plausibility, cache_dir, frame_step)
     too_fast = np.flatnonzero(data.v > v_max)
     if len(too_fast):
         k = too_fast[0]
@@ -113,7 +113,7 @@ def _map_recordings(folder, ids, cfg: ReplayConfig, jobs: Jobs, progress, keep_i
                     keep_contexts: bool, cache_dir: str | None):
     """Each recording read, converted and split (``process_recording``) on ``jobs``, as they finish."""
     running = {rid: jobs.submit(process_recording, str(folder), rid, cfg.seed, cfg.test_fraction, cfg.v_max,
-                                keep_inputs, keep_contexts, cfg.plausibility, cache_dir) for rid in ids}
+                                keep_inputs, keep_contexts, cfg.plausibility, cache_dir, cfg.frame_step) for rid in ids}
     for n, (_, part) in enumerate(jobs.as_completed(running), 1):
         if progress:
             progress(n, len(running))

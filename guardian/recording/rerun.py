@@ -178,7 +178,8 @@ def _log_vehicle_series(rec, data, params) -> None:
                                  columns=rr.Scalars.columns(scalars=vals[keep]))
 
 
-def log_highd_recording(path: Path, folder: Path, recording_id: int, params, overrides_of, judge=None) -> dict:
+def log_highd_recording(path: Path, folder: Path, recording_id: int, params, overrides_of, judge=None,
+                        frame_step: int = 1) -> dict:
     """One recording: lane markings, every vehicle per frame (red where its input is not self-safe, amber where its
     lane change is not ρ̂-responsible), per-vehicle time series of speed, gap, input and the admissible input
     interval, and the events; it opens with ``highd_blueprint``.
@@ -187,12 +188,13 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
     are drawn red and listed in ``events/override``. ``judge(event, overapprox)`` returns the inputs that make a
     lane change ρ̂-responsible (None: outside the state space); each lane change of the recording (held out or
     not) is then listed in ``events/lane_change`` with its recorded input against the responsible inputs of the
-    trivial and the ordered ρ̂, as a warning when the recorded input is not among them.
+    trivial and the ordered ρ̂, as a warning when the recorded input is not among them. ``frame_step``: every k-th
+    frame, as the replay saw them (``guardian.highd.reader.subsample``).
     """
     from guardian.highd.convert import to_itha
-    from guardian.highd.reader import read_recording
+    from guardian.highd.reader import read_recording, subsample
 
-    rec_data = read_recording(folder, recording_id)
+    rec_data = subsample(read_recording(folder, recording_id), frame_step)
     data = to_itha(rec_data)
     over = overrides_of(data)
     flagged = {(int(v), int(f)) for v, f in zip(data.vehicle[over], data.frame[over])}

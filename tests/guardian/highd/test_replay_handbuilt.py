@@ -79,3 +79,23 @@ def test_the_rerun_recording_shows_the_lane_change_judged_on_its_recorded_input(
         assert "changes right; recorded input +0.00 m/s^2" in line, line
         assert "trivial: responsible inputs [-6.00, " in line and line.endswith(f"m/s^2, {verdict}"), line
         assert result["rerun"]["lane_changes_not_responsible"] == (verdict != "responsible")
+
+
+def test_a_frame_step_replays_the_same_traffic_at_a_lower_rate(tmp_path, capsys, monkeypatch):
+    """``--frame-step 2`` on a 10 Hz recording: the same vehicles every other frame, dt 0.2 s, the lane change
+    still seen; the views at each step are cached apart; a step that does not divide the rate is refused."""
+    folder = _recording(tmp_path / "r", 4.35, 0.0)
+    monkeypatch.setenv("GUARDIAN_CACHE_DIR", str(tmp_path / "cache"))
+    runs = {}
+    for step in (1, 2, 2, 1):
+        assert main(["replay", str(folder), "--json", "--frame-step", str(step)]) == 0
+        r = json.loads(capsys.readouterr().out)
+        runs.setdefault(step, []).append(r)
+    full, half = runs[1][0], runs[2][0]
+    assert (full["dt"], half["dt"]) == (0.1, 0.2) and half["config"]["frame_step"] == 2
+    assert half["trajectories"] == full["trajectories"] and half["lane_changes"] == full["lane_changes"] == 1
+    assert abs(half["data_points"] - full["data_points"] / 2) <= full["trajectories"]
+    assert [r["cache"]["hits"] for r in runs[2]] == [0, 1] and [r["cache"]["hits"] for r in runs[1]] == [0, 1]
+    assert runs[2][1]["data_points"] == half["data_points"] and runs[1][1]["data_points"] == full["data_points"]
+    assert main(["replay", str(folder), "--frame-step", "3", "--no-cache"]) == 2
+    assert "a frame step of 3 does not divide its frame rate 10 Hz" in capsys.readouterr().err
