@@ -94,12 +94,15 @@ def replay_text(result: dict) -> str:
         lines.append("the reader's plausibility rules were off (--no-plausibility)")
     ctx = result.get("contexts")
     if ctx:
-        lines.append(f"self-safety with per-context sets: {_pct(ctx['self_safety'])}"
-                     + (f" ({ctx['note']})" if ctx.get("note") else ""))
+        lines.append(f"self-safety with per-context sets: {_pct(ctx['self_safety'])} (single sets on the same points "
+                     f"{_pct(ctx.get('self_safety_single'))}); held-out lead accelerations outside D: "
+                     f"{ctx.get('test_disturbances_outside')} per context, {ctx.get('test_disturbances_outside_single')} "
+                     f"single, of {ctx.get('test_disturbances')}" + (f" ({ctx['note']})" if ctx.get("note") else ""))
         for name, c in ctx.get("by_context", {}).items():
             lines.append(f"  {name:14s} train {c['train_samples']:6d}  D = [{c['bounds'][0]:.3f}, {c['bounds'][1]:.3f}]  "
                          f"U = [{c['input_bounds'][0]:.3f}, {c['input_bounds'][1]:.3f}]  test {c['test_points']:6d}  "
-                         f"self-safety {_pct(c['self_safety'])}")
+                         f"self-safety {_pct(c['self_safety'])} (single {_pct(c.get('self_safety_single'))})  "
+                         f"d outside D {c.get('test_disturbances_outside')} of {c.get('test_disturbances')}")
     sens = result.get("sensitivity")
     if sens:
         cols = [k for k in sens[0] if k not in ("variant", "disturbance_bounds", "input_bounds")]

@@ -199,7 +199,7 @@ def evaluate(cfg: ReplayConfig, dt: float, train: Training, test: ITHAData, even
                          **{f"responsibility_{k}{part}": n for k, c in refused.items()
                             for part, n in (("", c.overrides), ("_no_input", c.no_input), ("_outside", c.outside))}}}
     if contexts:
-        out["contexts"] = _context_rates(cfg, dt, train, test, bounds)
+        out["contexts"] = _context_rates(cfg, dt, train, test, bounds, over)
     return out
 
 
@@ -223,7 +223,16 @@ def _mean(flags: np.ndarray) -> float | None:
     return float(flags.mean()) if len(flags) else None
 
 
-def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
+def _outside(d: np.ndarray, bounds) -> tuple[int, int]:
+    """(held-out lead accelerations seen, how many lie outside ``bounds``): where the guarantee's traffic model
+    did not hold."""
+    seen = d[np.isfinite(d)]
+    return int(len(seen)), int(np.count_nonzero((seen < bounds[0]) | (seen > bounds[1])))
+
+
+def _context_rates(cfg, dt, train: Training, test, global_bounds, global_over: np.ndarray) -> dict:
+    """Per context (lane x speed band): its own D (and U from the data), the self-safety rate of its sets beside the
+    single sets' rate on the same held-out points, and the held-out lead accelerations outside its D."""
     ctx_test = contexts_of(test.lane, test.v)
     over = np.zeros(len(test.v), dtype=bool)
     table = {}
@@ -234,11 +243,17 @@ def _context_rates(cfg, dt, train: Training, test, global_bounds) -> dict:
         p = car_following_params(cfg, dt, bounds, train.u_bounds(cfg, c))
         over[mask] = _overrides_chunked(p, test, mask)
         lane, band = divmod(int(c), 10)
+        seen, outside = _outside(test.d[mask], bounds)
         table[f"lane{lane}_v{int(SPEED_BANDS[band])}-{SPEED_BANDS[band + 1]:g}"] = {
             "train_samples": int(len(samples)), "bounds": list(bounds), "input_bounds": [p.u_min, p.u_max],
             "test_points": int(mask.sum()),
-            "self_safety": float(over[mask].mean())}
-    return {"self_safety": _mean(over), "by_context": table,
+            "self_safety": float(over[mask].mean()), "self_safety_single": float(global_over[mask].mean()),
+            "test_disturbances": seen, "test_disturbances_outside": outside}
+    seen, outside = _outside(test.d, global_bounds)
+    return {"self_safety": _mean(over), "self_safety_single": _mean(global_over), "by_context": table,
+            "test_disturbances": seen,
+            "test_disturbances_outside": sum(c["test_disturbances_outside"] for c in table.values()),
+            "test_disturbances_outside_single": outside,
             "note": "contexts with fewer than 200 training samples use the single-context bounds"}
 
 

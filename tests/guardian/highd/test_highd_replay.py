@@ -1,4 +1,5 @@
 """Conversion to ITHA data, calibration and override counting; workers and Dask give identical results."""
+import json
 import math
 
 import numpy as np
@@ -271,3 +272,21 @@ def test_consistency_refusals_name_the_file_line_and_column(folder, tmp_path):
             line = _first_lane_change(pd.read_csv(folder / "01_tracks.csv"))[0] + 2
         with pytest.raises(HighDFormatError, match=rf"01_tracks\.csv: line {line}, column '{column}'"):
             to_itha(read_recording(out, 1, plausibility=False))
+
+
+def test_contexts_say_what_they_change_and_where_their_traffic_model_failed(capsys):
+    """``--contexts`` on the real I-80 sample: beside each context's rate, the single sets' rate on the same
+    points (their mean over the contexts is the single rate), and the held-out lead accelerations outside the
+    context's D; one context's leads all braked beyond its D, and the record says so."""
+    from guardian.cli import main
+
+    assert main(["replay", str(SHARED_DATA / "i80_sample"), "--contexts", "--input-bounds", "data", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    ctx, table = r["contexts"], r["contexts"]["by_context"].values()
+    assert ctx["self_safety_single"] == r["override_rates"]["self_safety"]
+    points = sum(c["test_points"] for c in table)
+    assert points == r["test_data_points"]
+    assert abs(sum(c["self_safety_single"] * c["test_points"] for c in table) / points - ctx["self_safety_single"]) < 1e-12
+    assert ctx["test_disturbances_outside"] == sum(c["test_disturbances_outside"] for c in table) > 0
+    assert sum(c["test_disturbances"] for c in table) == ctx["test_disturbances"]
+    assert any(c["test_disturbances"] and c["test_disturbances_outside"] == c["test_disturbances"] for c in table)
