@@ -15,6 +15,44 @@ def save_to(rec, path, blueprint) -> None:
     rec.save(str(path), default_blueprint=blueprint)
 
 
+ROLLOUT_VIEW = 300.0   # [m] of road in view when a rollout recording opens (a road may be 20 km long)
+PROPOSED, APPLIED, ADMISSIBLE = (220, 50, 50), (30, 30, 30), (40, 160, 60)
+
+
+def rollout_blueprint(base, overtake: bool):
+    """A rollout recording's layout: the road, opening on ``ROLLOUT_VIEW`` m around the ego's start (the viewer
+    would otherwise fit the whole road, kilometres, and show no car); one plot per unit (acceleration, steering,
+    the lead's valid intentions on the overtake scenarios) and the events."""
+    import rerun.blueprint as rrb
+
+    x0 = float(base.vehicle.position[0]) - ROLLOUT_VIEW / 4
+    ys = [float(lane.start[1]) + side * lane.width for _from in base.road.network.graph.values()
+          for group in _from.values() for lane in group for side in (-0.5, 0.5)]
+    bounds = rrb.VisualBounds2D(x_range=[x0, x0 + ROLLOUT_VIEW], y_range=[min(ys) - 2.0, max(ys) + 2.0])
+    plots = [rrb.TimeSeriesView(origin="/", contents=["/inputs/*/throttle", "/admissible/acceleration/**"],
+                                name="acceleration [m/s²]: proposed (red), applied (black), admissible (green)"),
+             rrb.TimeSeriesView(origin="/", contents=["/inputs/*/steering", "/admissible/steering/**"],
+                                name="steering: proposed (red), applied (black), admissible (green)")]
+    if overtake:
+        plots.append(rrb.TimeSeriesView(origin="/intention", name="the lead's valid intentions"))
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Spatial2DView(origin="/road", name="road (ego green, lead amber, traffic blue)", visual_bounds=bounds),
+        rrb.Vertical(*plots, rrb.TextLogView(origin="/events", name="overrides and events"),
+                     row_shares=[2] * len(plots) + [1]),
+        column_shares=[3, 2]), collapse_panels=True)
+
+
+def _series_styles(rec) -> None:
+    """Each series its colour and name, the same in both plots."""
+    for axis in ("throttle", "steering"):
+        rec.log(f"inputs/proposed/{axis}", rr.SeriesLines(colors=[PROPOSED], names=["proposed"]), static=True)
+        rec.log(f"inputs/applied/{axis}", rr.SeriesLines(colors=[APPLIED], names=["applied"]), static=True)
+    for axis in ("acceleration", "steering"):
+        for side in ("low", "high"):
+            rec.log(f"admissible/{axis}/{side}", rr.SeriesLines(colors=[ADMISSIBLE], names=[f"admissible {side}"]),
+                    static=True)
+
+
 def run_blueprint(series: tuple[str, ...], road_name: str = "road"):
     """The layout a rollout recording opens with: the road left; the inputs beside their admissible
     range, and the events, right."""
@@ -269,7 +307,6 @@ class GuardianRecorder(_Closing):
 
     def __init__(self, path: Path, application_id: str = "guardian-highway-env"):
         self.rec = rr.RecordingStream(application_id)
-        save_to(self.rec, path, run_blueprint(("/inputs", "/admissible", "/intention")))
         self.path = Path(path)
         self.step_index = 0
         self._valid = None
@@ -277,7 +314,9 @@ class GuardianRecorder(_Closing):
 
     def start_episode(self, env, episode: int) -> None:
         base = env.unwrapped
-        if not self._lanes_logged:
+        if not self._lanes_logged:   # the file begins with the first episode, its view on the ego's start
+            save_to(self.rec, self.path, rollout_blueprint(base, getattr(base, "lead", None) is not None))
+            _series_styles(self.rec)
             strips = []
             for _from in base.road.network.graph.values():
                 for group in _from.values():
@@ -334,4 +373,6 @@ class GuardianRecorder(_Closing):
         self.step_index += 1
 
     def close(self) -> None:
+        if not self._lanes_logged:   # no episode began: the file still exists, with the plain layout
+            save_to(self.rec, self.path, run_blueprint(("/inputs", "/admissible", "/intention")))
         self.rec.flush()

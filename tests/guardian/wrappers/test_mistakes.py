@@ -43,12 +43,3 @@ def test_wrapping_twice_is_refused():
 def test_a_misspelt_config_key_is_refused_with_the_key_it_resembles():
     with pytest.raises(ConfigError, match="no config key 'lanes_cout' \\(did you mean 'lanes_count'\\?\\)"):
         Guardian(gym.make("highway-fast-v0", config={"lanes_cout": 3}))
-
-
-def test_a_recording_into_a_folder_not_yet_made_makes_it(tmp_path):
-    from guardian.recording.rerun import GuardianRecorder
-
-    path = tmp_path / "new" / "deeper" / "run.rrd"
-    recorder = GuardianRecorder(path)
-    recorder.close()
-    assert path.is_file()

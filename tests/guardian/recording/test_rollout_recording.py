@@ -1,0 +1,30 @@
+"""Rollout recordings a user opens: the file wherever asked, the view on the action."""
+import gymnasium as gym
+import highway_env  # noqa: F401
+
+
+def test_a_recording_into_a_folder_not_yet_made_makes_it(tmp_path):
+    from guardian.recording.rerun import GuardianRecorder
+
+    path = tmp_path / "new" / "deeper" / "run.rrd"
+    recorder = GuardianRecorder(path)
+    recorder.close()
+    assert path.is_file()
+
+
+def test_a_rollout_recording_opens_on_the_ego_not_on_kilometres_of_road():
+    """The viewer fits all it is given: HighwayOvertake's lanes run 20 km and no car was visible on opening. The
+    layout now opens on 300 m around the ego's start, and each unit has its own plot."""
+    from guardian.recording.rerun import ROLLOUT_VIEW, rollout_blueprint
+
+    env = gym.make("highway-fast-v0")
+    env.reset(seed=0)
+    base = env.unwrapped
+    road_view, side = rollout_blueprint(base, overtake=False).root_container.contents
+    (bounds,) = road_view.properties["VisualBounds2D"].range.as_arrow_array().to_pylist()
+    x0, x1 = bounds["x_range"]
+    assert x0 < float(base.vehicle.position[0]) < x1 and x1 - x0 == ROLLOUT_VIEW
+    lanes_end = max(float(lane.end[0]) for f in base.road.network.graph.values() for g in f.values() for lane in g)
+    assert lanes_end - x0 > 3 * ROLLOUT_VIEW     # without the bounds the view would fit all of this
+    plots = [v.name for v in side.contents]
+    assert any("acceleration" in str(n) for n in plots) and any("steering" in str(n) for n in plots)
