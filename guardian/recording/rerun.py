@@ -42,6 +42,28 @@ def rollout_blueprint(base, overtake: bool):
         column_shares=[3, 2]), collapse_panels=True)
 
 
+def _reasons(reasons) -> str:
+    """The step's reasons, each kind once: the simulation steps of a policy step repeat a reason with other numbers
+    ("next speed at most 28.80 m/s", "... 28.40 m/s"); the first is kept, with how often it came."""
+    import re
+
+    kinds: dict = {}
+    for r in reasons:
+        kind = re.sub(r"-?\d+\.\d+", "#", r)   # decimals vary from step to step; car and lane numbers do not
+        first, n = kinds.get(kind, (r, 0))
+        kinds[kind] = (first, n + 1)
+    return "; ".join(first + (f" (x{n})" if n > 1 else "") for first, n in kinds.values())
+
+
+def _shown(value) -> str:
+    """An input as a person reads it: numbers to 3 decimals, a meta action by its name."""
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_shown(v) for v in value) + "]"
+    if isinstance(value, float):
+        return f"{value:.3f}"
+    return str(value)
+
+
 def _series_styles(rec) -> None:
     """Each series its colour and name, the same in both plots."""
     for axis in ("throttle", "steering"):
@@ -302,7 +324,9 @@ class GuardianRecorder(_Closing):
       acceleration (overtake scenarios, as Fig. 6.5)
     * ``intention/valid_count`` and ``intention/log`` the lead's valid intentions and their changes;
       ``guardian/active_set`` (text)
-    * ``events/override`` one entry per overridden step with the reasons; ``events/episode``
+    * ``events/override`` one entry per step the guardian changed for safety (the tally's ``override_steps``), with
+      the reasons (each once); ``events/model_clip`` the steps whose only change was a clip to the model's bounds;
+      ``events/episode``. The text names the ``step`` timeline's value, then the episode and its own step
     """
 
     def __init__(self, path: Path, application_id: str = "guardian-highway-env"):
@@ -366,10 +390,13 @@ class GuardianRecorder(_Closing):
                     rec.log("intention/log", rr.TextLog(f"valid intentions: {', '.join(valid) or 'none'}; "
                                                         f"active set {g.get('active_set')}"))
                     self._valid = valid
-            if g.get("overridden"):
-                rec.log("events/override", rr.TextLog(
-                    f"episode {episode} step {t} ({g.get('changed')}): {g.get('proposed')} -> {g.get('applied')}; "
-                    + "; ".join(g.get("reasons", [])), level="WARN"))
+            if g.get("overridden"):   # a safety override (the tally's override_steps) or a clip to the model
+                safety = bool(g.get("safety_override", True))
+                reasons = _reasons(g.get("reasons", []))
+                rec.log("events/override" if safety else "events/model_clip", rr.TextLog(
+                    f"step {self.step_index} (episode {episode}, its step {t}; {g.get('changed')}): "
+                    f"{_shown(g.get('proposed'))} -> {_shown(g.get('applied'))}" + (f"; {reasons}" if reasons else ""),
+                    level="WARN" if safety else "INFO"))
         self.step_index += 1
 
     def close(self) -> None:

@@ -28,3 +28,25 @@ def test_a_rollout_recording_opens_on_the_ego_not_on_kilometres_of_road():
     assert lanes_end - x0 > 3 * ROLLOUT_VIEW     # without the bounds the view would fit all of this
     plots = [v.name for v in side.contents]
     assert any("acceleration" in str(n) for n in plots) and any("steering" in str(n) for n in plots)
+
+
+def test_the_override_events_are_the_counted_overrides_and_read_as_a_person_reads_them(tmp_path, capsys):
+    """merge-v0 once showed 29 override events against override_steps 27: clips to the model's bounds were logged
+    as overrides. Now each safety override is one event (a clip is a model_clip event), numbers are rounded, a
+    reason repeated over a step's simulation steps appears once with its count, and the text names the timeline's
+    step."""
+    import json
+    import re
+
+    from guardian.cli import main
+    from guardian.recording.rerun import read_texts
+
+    rrd = tmp_path / "merge.rrd"
+    assert main(["rollout", "--env", "merge-v0", "--agent", "reckless", "--episodes", "2", "--rerun", str(rrd),
+                 "--json"]) == 0
+    counts = json.loads(capsys.readouterr().out)
+    events = read_texts(rrd, "/events/override")
+    assert len(events) == counts["override_steps"] > 0
+    assert not any(re.search(r"\d\.\d{4,}", e) for e in events), events
+    assert all(e.count(r) == 1 for e in events for r in e.split("; ")[1:]), events
+    assert events[0].startswith("step 0 (episode 0, its step 1;")
