@@ -34,7 +34,7 @@ The HighD tables are written by ``guardian.highd.trajectories.write_highd`` (its
 from __future__ import annotations
 
 import datetime as dt
-import xml.etree.ElementTree as ElementTree
+from xml.etree import ElementTree
 from pathlib import Path
 
 import numpy as np
