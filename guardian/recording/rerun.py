@@ -196,14 +196,22 @@ class HighwayRecorder(_Closing):
 
 
 # ---- HighD-format recordings ------------------------------------------------------------------------
-def highd_blueprint():
-    """The layout a HighD recording opens with: the road on the left, per-vehicle series and events right."""
+HIGHD_SHOWN = 4   # vehicles whose series a HighD recording opens on (every vehicle's are in the file)
+
+
+def highd_blueprint(shown=()):
+    """The layout a HighD recording opens with: the road on the left; right, one plot per vehicle of ``shown`` (its
+    input against its admissible input; its speed and gap: the vehicles the events name first) and the events. A
+    plot of every vehicle (931 series on a sample) reads as nothing; the others stay in the file, a click away."""
     import rerun.blueprint as rrb
 
+    plots = [rrb.TimeSeriesView(origin=f"/vehicles/{v}", name=f"vehicle {v}: input, admissible input, speed, gap")
+             for v in list(shown)[:HIGHD_SHOWN]]
     return rrb.Blueprint(rrb.Horizontal(
-        rrb.Spatial2DView(origin="/road", name="road (image coordinates, red = overridden)"),
-        rrb.Vertical(rrb.TimeSeriesView(origin="/vehicles", name="per vehicle: speed, gap, input, admissible input"),
-                     rrb.TextLogView(origin="/events", name="overrides and lane changes"), row_shares=[3, 1]),
+        rrb.Spatial2DView(origin="/road", name="road (image coordinates, red = not self-safe, amber = lane change not "
+                                               "responsible)"),
+        rrb.Vertical(*plots, rrb.TextLogView(origin="/events", name="overrides and lane changes"),
+                     row_shares=[2] * len(plots) + [2]),
         column_shares=[3, 2]), collapse_panels=True)
 
 
@@ -261,7 +269,9 @@ def log_highd_recording(path: Path, folder: Path, recording_id: int, params, ove
     verdicts = [(e, _lane_change_verdict(e, judge)) for e in data.lane_changes]
     refused = {(e.vehicle, e.frame) for e, (_, bad) in verdicts if bad}
     rec = rr.RecordingStream("guardian-highd")
-    save_to(rec, path, highd_blueprint())
+    named = [e.vehicle for e, (_, bad) in verdicts if bad] + [int(v) for v in data.vehicle[over]]
+    named += [e.vehicle for e in data.lane_changes] + [int(v) for v in data.vehicle[:1]]
+    save_to(rec, path, highd_blueprint(dict.fromkeys(named)))
     _log_vehicle_series(rec, data, params)
     length = 450.0
     marks = rec_data.upper_markings + rec_data.lower_markings

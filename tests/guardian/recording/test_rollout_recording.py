@@ -50,3 +50,13 @@ def test_the_override_events_are_the_counted_overrides_and_read_as_a_person_read
     assert not any(re.search(r"\d\.\d{4,}", e) for e in events), events
     assert all(e.count(r) == 1 for e in events for r in e.split("; ")[1:]), events
     assert events[0].startswith("step 0 (episode 0, its step 1;")
+
+
+def test_a_highd_recording_opens_on_the_vehicles_the_events_name_not_on_every_vehicle():
+    """One plot of every vehicle's series (931 on the sample) reads as nothing: the layout opens on a plot per
+    vehicle the events name first, at most ``HIGHD_SHOWN``."""
+    from guardian.recording.rerun import HIGHD_SHOWN, highd_blueprint
+
+    _, side = highd_blueprint([5, 7, 9, 11, 13, 15]).root_container.contents
+    plots = [v for v in side.contents if type(v).__name__ == "TimeSeriesView"]
+    assert [str(v.origin) for v in plots] == [f"/vehicles/{v}" for v in (5, 7, 9, 11)][:HIGHD_SHOWN]
