@@ -45,6 +45,16 @@ def _field(draw, x: int, y: int, label: str, value: str, colour=BLACK) -> int:
     return x + int(draw.textlength(value, font=_font(True))) + 28
 
 
+def _verdict(record: dict) -> str:
+    """What the guardian changed, as the agent's own actions say it: a meta action by name (a refused lane change
+    is named so), else the input that changed."""
+    proposed, applied = record.get("proposed"), record.get("applied")
+    if isinstance(proposed, str) and isinstance(applied, str):
+        refused = " (lane change refused)" if record.get("refused_lane_change") else ""
+        return f"OVERRIDE: {proposed} -> {applied}{refused}"
+    return f"OVERRIDE ({record.get('changed')})"
+
+
 def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float]) -> np.ndarray:
     """``frame`` (H x W x 3) with the panel appended below it.
 
@@ -72,8 +82,7 @@ def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float]) -> 
     x = _field(draw, 8, y, "set", str(record.get("active_set", "-")))
     x = _field(draw, x, y, "valid intentions", ", ".join(record.get("valid_intentions") or []) or "-")
     overridden = bool(record.get("overridden"))
-    _field(draw, x, y, "guardian", f"OVERRIDE ({record.get('changed')})" if overridden else "pass-through",
-           DARK_RED if overridden else BLACK)
+    _field(draw, x, y, "guardian", _verdict(record) if overridden else "pass-through", DARK_RED if overridden else BLACK)
 
     y += ROW
     label = "a_ex [m/s^2]"

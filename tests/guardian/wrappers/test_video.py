@@ -106,3 +106,12 @@ def test_highway_v0_videos_from_the_rollout_play_at_the_policy_frequency_without
     clip = VideoFileClip(str(mp4))
     assert clip.fps == 1  # highway-fast-v0: policy_frequency 1
     clip.close()
+
+
+def test_the_panel_names_a_meta_override_by_its_actions():
+    """A refused lane change on merge-v0 read "OVERRIDE (throttle)"; the panel now says what was asked and done."""
+    from guardian.wrappers.panel import _verdict
+
+    meta = {"proposed": "LANE_RIGHT", "applied": "SLOWER", "changed": "throttle", "refused_lane_change": True}
+    assert _verdict(meta) == "OVERRIDE: LANE_RIGHT -> SLOWER (lane change refused)"
+    assert _verdict({"proposed": [1.0, 0.1], "applied": [0.5, 0.1], "changed": "throttle"}) == "OVERRIDE (throttle)"
