@@ -29,10 +29,11 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
 - ``ego_lane_unseen``: vehicle-steps where a lane a guarded body overlaps held neither the vehicle nor one of
   its shadows in SUMO after the step (the cars behind there did not see it).
 - model coverage: ``ego_uncovered`` (SUMO did not put a guarded vehicle where the model said, more than 1 mm
-  off) and ``traffic_uncovered`` (a traffic car's step outside the traffic model: braking beyond
-  ``traffic_accel``, or a position update other than the Euler step ``x + v dt`` of (7.3); SUMO's default
-  Euler update moves a car by its *new* speed, so every step with a speed change counts), with the worst
-  excess of each.
+  off) and ``traffic_uncovered`` (a traffic car's step outside the traffic model, by its cause: braking beyond
+  ``traffic_accel`` (``traffic_uncovered_braking``), or a position update other than the Euler step ``x + v dt``
+  of (7.3) (``traffic_uncovered_position``; SUMO's default Euler update moves a car by its *new* speed, so every
+  step with a speed change counts); a step with both causes counts once in the total), with the worst excess of
+  each.
 - ``guarded_lost``: guarded vehicles SUMO removed before the road's end (never expected: counted against us).
 - ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
   vehicles' distance along the road, summed.
@@ -110,7 +111,8 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0, "at_fault_after_outside": 0, "crashes": [],
            "guarded": setting.guarded, "starts_outside": 0, "start_inside": None, "overrides": 0,
            "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
-           "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_braking_excess": 0.0,
+           "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_uncovered_braking": 0,
+           "traffic_uncovered_position": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
            "ramp_starts": 0, "merged": 0,
            "inserted": insert_guarded(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
@@ -325,14 +327,18 @@ def _traffic_coverage(out: dict, prev: dict, others: list, accel: float, dt: flo
         braking_excess = -accel - a
         out["traffic_braking_excess"] = max(out["traffic_braking_excess"], braking_excess)
         out["traffic_progress_excess_m"] = max(out["traffic_progress_excess_m"], abs(progress))
-        out["traffic_uncovered"] += braking_excess > 1e-6 or abs(progress) > 1e-6
+        braked, moved = braking_excess > 1e-6, abs(progress) > 1e-6
+        out["traffic_uncovered"] += braked or moved
+        out["traffic_uncovered_braking"] += braked
+        out["traffic_uncovered_position"] += moved
 
 
 SUMMED = ("steps", "vehicle_steps", "collisions", "sumo_collisions", "shadow_collisions", "between_guarded", "at_fault",
           "at_fault_after_inside", "at_fault_after_outside", "starts_outside", "overrides", "safety_overrides",
           "lane_changes",
           "failsafe_steps", "ego_uncovered", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
-          "traffic_uncovered", "emergency_braking", "teleports", "distance_m", "ramp_starts", "merged")
+          "traffic_uncovered", "traffic_uncovered_braking", "traffic_uncovered_position", "emergency_braking",
+          "teleports", "distance_m", "ramp_starts", "merged")
 
 
 def summary(results: list) -> dict:

@@ -483,6 +483,9 @@ def test_sumos_driver_guarded_causes_no_collision():
         r = run_episode(SHORT, "sumo", seed)
         assert r["inserted"] and r["at_fault"] == 0 and r["guarded_lost"] == 0, r["crashes"]
         assert r["ego_uncovered"] == 0, r
+        braking, position = r["traffic_uncovered_braking"], r["traffic_uncovered_position"]
+        assert max(braking, position) <= r["traffic_uncovered"] <= braking + position   # every step by its cause
+        assert position > 0 and braking == 0   # Krauss' speed-by-new-speed update; nobody beyond emergencyDecel
 
 
 def test_a_vehicle_that_starts_on_the_ramp_is_guarded_there_and_counted_when_it_merges():
