@@ -34,8 +34,8 @@ The HighD tables are written by ``guardian.highd.trajectories.write_highd`` (its
 from __future__ import annotations
 
 import datetime as dt
-from xml.etree import ElementTree
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import pandas as pd
