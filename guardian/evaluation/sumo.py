@@ -35,6 +35,9 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
   step with a speed change counts); a step with both causes counts once in the total), with the worst excess of
   each.
 - ``guarded_lost``: guarded vehicles SUMO removed before the road's end (never expected: counted against us).
+- ``ego_speed_reset``: steps after which SUMO had a guarded vehicle at another speed than the model's (moved by
+  position onto a junction's internal lane, SUMO stands it still: an instant stop in front of the traffic). The
+  model's speed is restored at once (``setPreviousSpeed``) and the step is counted.
 - ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
   vehicles' distance along the road, summed.
 - ``ramp_starts``: inserted guarded vehicles that started on the on-ramp (``SumoSetting.start``); ``merged``: of
@@ -63,6 +66,7 @@ from guardian.model.roads import RoadMap
 from itha.road import example8_order
 
 PLACEMENT_TOL = 1e-3  # [m] SUMO's placement of the guarded vehicle against the model's state
+SPEED_TOL = 1e-6      # [m/s] SUMO's speed of the guarded vehicle against the model's (it takes the speed set)
 
 
 @dataclass
@@ -111,7 +115,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0, "at_fault_after_outside": 0, "crashes": [],
            "guarded": setting.guarded, "starts_outside": 0, "start_inside": None, "overrides": 0,
            "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
-           "guarded_lost": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_uncovered_braking": 0,
+           "guarded_lost": 0, "ego_speed_reset": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_uncovered_braking": 0,
            "traffic_uncovered_position": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
            "ramp_starts": 0, "merged": 0,
@@ -293,7 +297,12 @@ class _Episode:
                 out["guarded_lost"] += 1
                 self._leave(car.name)
                 continue
-            x, y, heading, _ = car.expected
+            x, y, heading, speed = car.expected
+            if abs(traci.vehicle.getSpeed(car.name) - speed) > SPEED_TOL:
+                # SUMO set a speed of its own (moved by position onto a junction's internal lane, it stands the
+                # vehicle still): the model's is restored before anyone reads it, and the step is counted
+                traci.vehicle.setPreviousSpeed(car.name, speed)
+                out["ego_speed_reset"] += 1
             lane = road.nearest_slot(x, y)
             out["lane_changes"] += car.lane is not None and lane != car.lane
             car.lane = lane
@@ -336,7 +345,7 @@ def _traffic_coverage(out: dict, prev: dict, others: list, accel: float, dt: flo
 SUMMED = ("steps", "vehicle_steps", "collisions", "sumo_collisions", "shadow_collisions", "between_guarded", "at_fault",
           "at_fault_after_inside", "at_fault_after_outside", "starts_outside", "overrides", "safety_overrides",
           "lane_changes",
-          "failsafe_steps", "ego_uncovered", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
+          "failsafe_steps", "ego_uncovered", "ego_speed_reset", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
           "traffic_uncovered", "traffic_uncovered_braking", "traffic_uncovered_position", "emergency_braking",
           "teleports", "distance_m", "ramp_starts", "merged")
 

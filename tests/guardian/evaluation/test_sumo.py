@@ -513,3 +513,15 @@ def test_a_ramp_start_needs_a_ramp_and_one_vehicle():
         replace(MERGE, start="ramp", guarded=2)
     with pytest.raises(ConfigError, match="'main' or 'ramp'"):
         replace(MERGE, start="shoulder")
+
+
+def test_sumo_standing_a_guarded_vehicle_on_a_junction_is_undone_and_counted():
+    """Moved by position onto the exit junction's internal lane, SUMO stood the guarded vehicle still from 35 m/s
+    in one step; the guardian then read speed 0, the traffic behind in the lane its body overlapped ran into it, and
+    the judge gave the crash to the guarded vehicle (exit road, IDM traffic, the reckless driver, seed 932). The
+    model's speed is now restored after the step, and the step counted."""
+    from guardian.adapters.sumo.network import Traffic
+
+    setting = SumoSetting(net=HighwayNet(exit_at=1000.0), traffic=Traffic(car_following="IDM"))
+    r = run_episode(setting, "reckless", 932)
+    assert r["ego_speed_reset"] >= 1 and r["collisions"] == 0, r["crashes"]
