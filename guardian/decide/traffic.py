@@ -12,8 +12,8 @@ own input exactly:
   (``at_risk``: it has crashed, or it may crash into the car it follows) the ego keeps to where
   it can stop behind that car standing still after this step, ``wreck_margin`` further back;
 * ``follower_speeds``: next speeds keeping the nearest car behind in a lane the ego
-  is entering (and any car behind whose body overlaps it along the road) in its RCIS whatever that car does (the ego answers for it while the
-  entry lasts, as a reset does in ITHA);
+  is entering (and any car behind whose body overlaps it along the road) in its RCIS whatever
+  that car does (the ego answers for it while the entry lasts, as a reset does in ITHA);
 * ``entry``: whether entering a lane is ρ̂-responsible (Definition 22, via
   ``itha.responsibility.EgoSupervisor``), with the next speeds that make it so.
 
@@ -26,8 +26,8 @@ runs into the car it follows stops faster (highway-env takes a crashed car's spe
 HighwayOvertake's traffic stops at once) and is pushed back by the impact. The traffic model does not
 say the other cars stay out of each other, so the guardian flags the cars that might not
 (``at_risk``) and treats each as able to stop at once: a crashed car; a car outside the
-car-following set behind a car it follows in some lane (``Scene.leads_of``); a car that cannot stop behind a car at
-risk (the same rule, one car further back). A car that follows safely a car that is not at risk
+car-following set behind a car it follows in some lane (``Scene.leads_of``); a car that cannot
+stop behind a car at risk (the same rule, one car further back). A car that follows safely a car that is not at risk
 is trusted to stay out of it: what remains (a car inside its set that brakes too late) is counted as
 the traffic model violation it is.
 """

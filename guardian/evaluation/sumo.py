@@ -115,8 +115,8 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "between_guarded": 0, "at_fault": 0, "at_fault_after_inside": 0, "at_fault_after_outside": 0, "crashes": [],
            "guarded": setting.guarded, "starts_outside": 0, "start_inside": None, "overrides": 0,
            "safety_overrides": 0, "failsafe_steps": 0, "lane_changes": 0, "ego_uncovered": 0, "ego_worst_m": 0.0, "ego_lane_unseen": 0,
-           "guarded_lost": 0, "ego_speed_reset": 0, "traffic_car_steps": 0, "traffic_uncovered": 0, "traffic_uncovered_braking": 0,
-           "traffic_uncovered_position": 0, "traffic_braking_excess": 0.0,
+           "guarded_lost": 0, "ego_speed_reset": 0, "traffic_car_steps": 0, "traffic_uncovered": 0,
+           "traffic_uncovered_braking": 0, "traffic_uncovered_position": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
            "ramp_starts": 0, "merged": 0,
            "inserted": insert_guarded(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}

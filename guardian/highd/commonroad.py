@@ -93,7 +93,8 @@ def _checked_step(path: Path, declared: float, given: float | None, raw: pd.Data
     if implied is not None and abs(implied / step - 1.0) > STEP_TOLERANCE:
         hint = (f"give the time step the motion says (guardian data convert commonroad --time-step {implied:.2g})"
                 if given is None else "the step given does not fit either")
-        raise HighDFormatError(f"{path}: timeStepSize {declared:g} s{'' if given is None else f' (given {given:g} s)'}, "
+        told = "" if given is None else f" (given {given:g} s)"
+        raise HighDFormatError(f"{path}: timeStepSize {declared:g} s{told}, "
                                f"but the vehicles move as if a step were {implied:.4g} s (median distance over speed "
                                f"between states): {hint}")
     return step, check

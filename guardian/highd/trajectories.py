@@ -60,9 +60,10 @@ def neighbours(t: pd.DataFrame) -> pd.DataFrame:
     t = t.assign(preceding=0, following=0, space_headway=0.0, time_headway=0.0)
     order = t.sort_values(["frame", "lane", "front"]).index
     s = t.loc[order]
-    group = (s["frame"].astype(str) + "/" + s["lane"].astype(str)).to_numpy()
-    ahead_same = np.concatenate([group[1:] == group[:-1], [False]])
-    behind_same = np.concatenate([[False], group[1:] == group[:-1]])
+    frame, lane = s["frame"].to_numpy(), s["lane"].to_numpy()
+    same = (frame[1:] == frame[:-1]) & (lane[1:] == lane[:-1])   # consecutive rows of one (frame, lane)
+    ahead_same = np.concatenate([same, [False]])
+    behind_same = np.concatenate([[False], same])
     ids, front = s["vehicle"].to_numpy(), s["front"].to_numpy()
     preceding = np.where(ahead_same, np.roll(ids, -1), 0)
     following = np.where(behind_same, np.roll(ids, 1), 0)

@@ -3,6 +3,7 @@ environment), the ITHA highway experiment (``HighwayRecorder``) and HighD-format
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -42,14 +43,15 @@ def rollout_blueprint(base, overtake: bool):
         column_shares=[3, 2]), collapse_panels=True)
 
 
+DECIMAL = re.compile(r"-?\d+\.\d+")
+
+
 def _reasons(reasons) -> str:
     """The step's reasons, each kind once: the simulation steps of a policy step repeat a reason with other numbers
     ("next speed at most 28.80 m/s", "... 28.40 m/s"); the first is kept, with how often it came."""
-    import re
-
     kinds: dict = {}
     for r in reasons:
-        kind = re.sub(r"-?\d+\.\d+", "#", r)   # decimals vary from step to step; car and lane numbers do not
+        kind = DECIMAL.sub("#", r)   # decimals vary from step to step; car and lane numbers do not
         first, n = kinds.get(kind, (r, 0))
         kinds[kind] = (first, n + 1)
     return "; ".join(first + (f" (x{n})" if n > 1 else "") for first, n in kinds.values())
