@@ -11,6 +11,11 @@ with ``v_L+`` kept in ``[0, v_max]`` (a lead car does not reverse). Safe set:
 ``v in [0, v_max]`` (nothing is ahead; a car can only appear ahead through a
 reset, which the responsibility rule (7.5) covers).
 
+``CarFollowingParams(integration="exact")`` moves the cars by constant accelerations over the step instead of
+the Euler step (``itha.exact``: a vehicle that moves continuously); the closed-form set, its intervals and the
+self-safe inputs then use the exact kinematics and the gap's minimum inside each step. With the default
+``"euler"`` everything below is (7.3) as the dissertation states it.
+
 Two representations of the same set, checked against each other in the tests:
 
 * ``MaximalSet``: closed form. The dynamics are monotone (v+ grows with v, u;
@@ -39,7 +44,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from itha import _kernels
+from itha import _kernels, exact
 from rcis.cache import RegionCache, code_fingerprint
 from rcis.invariant import outside_in
 from rcis.polyhedron import Polyhedron
@@ -51,6 +56,8 @@ H_TIGHTEN = 1e-6   # the polyhedral set keeps h >= h_min + this (rounding is ~1e
 INNER = 1e-9       # input and speed intervals aim this far inside the set, membership tests allow
                    # this much outside: the rounding of a simulated step falls in between
 SPEED_BISECTIONS = 48
+INPUT_BISECTIONS = 60  # exact integration: the highest self-safe input, to ~1e-17 m/s^2 of U's width
+INTEGRATIONS = ("euler", "exact")
 AXIS_SHRINK = 1e-7  # m/s: speed intervals of the polyhedral set stay this far from its boundary
 
 
@@ -67,6 +74,7 @@ class CarFollowingParams:
     d_max: float = 10.0
     drag: float = 0.0        # [1/s] ego: v+ = (1 - drag dt) v + dt u (the overtake ego of (6.3): b_e)
     lead_drag: float = 0.0   # [1/s] lead: v_L+ = max((1 - lead_drag dt) v_L + dt d, 0)
+    integration: str = "euler"  # "euler": (7.3); "exact": constant accelerations over the step (itha.exact)
 
     def __post_init__(self):
         for name in ("dt", "v_max", "h_min"):
@@ -79,6 +87,15 @@ class CarFollowingParams:
         for name in ("drag", "lead_drag"):
             if not 0 <= getattr(self, name) * self.dt < 1:
                 raise ValueError(f"CarFollowingParams.{name} must be in [0, 1/dt), got {getattr(self, name)}")
+        if self.integration not in INTEGRATIONS:
+            raise ValueError(f"CarFollowingParams.integration must be one of {INTEGRATIONS}, got {self.integration!r}")
+        if self.exact and self.has_drag:
+            raise ValueError("exact integration is implemented for (7.3) without drag; "
+                             f"got drag={self.drag}, lead_drag={self.lead_drag}")
+
+    @property
+    def exact(self) -> bool:
+        return self.integration == "exact"
 
     @property
     def has_drag(self) -> bool:
@@ -139,6 +156,9 @@ def headway_floor(p: CarFollowingParams, v, h, vL):
     same order, equal bit for bit, tested); anything else the array expression below.
     """
     v, h, vL = (np.asarray(a, float) for a in np.broadcast_arrays(v, h, vL))
+    if p.exact:
+        shape, flat = _kernels.flat_floats(v, h, vL)
+        return exact.floor_many(-p.u_min, -p.d_min, *flat).reshape(shape)
     if p.has_drag:
         out = np.array([_floor(p, a, b, c) for a, b, c in zip(v.ravel(), h.ravel(), vL.ravel())])
         return out.reshape(v.shape)
@@ -149,13 +169,18 @@ def headway_floor(p: CarFollowingParams, v, h, vL):
 
 
 def _floor(p: CarFollowingParams, v: float, h: float, vL: float) -> float:
-    """``min_t Φ_t`` of one state, compiled: the closed form, or the braking sequences with drag."""
+    """``min_t Φ_t`` of one state, compiled: the closed form, the braking sequences with drag, or the least gap
+    over all time under exact integration."""
+    if p.exact:
+        return exact.floor(-p.u_min, -p.d_min, v, h, vL)
     if p.has_drag:
         return _kernels.floor_drag(p.keep, p.ego_step, 1.0 - p.lead_drag * p.dt, p.lead_step, p.dt, v, h, vL)
     return _kernels.floor(p.ego_step, p.lead_step, p.dt, v, h, vL)
 
 
 def _bisect_speed(p: CarFollowingParams, a: float, b: float, threshold: float, over_lead: bool) -> tuple:
+    if p.exact:
+        return exact.bisect_speed(-p.u_min, -p.d_min, a, b, threshold, p.v_max, SPEED_BISECTIONS, over_lead)
     if p.has_drag:
         return _kernels._bisect_drag(p.keep, p.ego_step, 1.0 - p.lead_drag * p.dt, p.lead_step, p.dt, a, b,
                                      threshold, p.v_max, SPEED_BISECTIONS, over_lead)
@@ -172,6 +197,9 @@ def unsafe_inputs(p: CarFollowingParams, v, h, vL, u) -> np.ndarray:
     if p.has_drag:
         raise ValueError("unsafe_inputs checks recorded data against (7.3) without drag")
     shape, flat = _kernels.flat_floats(v, h, vL, u)
+    if p.exact:
+        return exact.unsafe_inputs(-p.u_min, -p.d_min, p.dt, p.u_min, p.u_max, p.v_max, p.h_min,
+                                   *flat).reshape(shape)
     return _kernels.unsafe_inputs(p.ego_step, p.lead_step, p.dt, p.u_min, p.u_max, p.d_min, p.v_max, p.h_min,
                                   *flat).reshape(shape)
 
@@ -287,6 +315,7 @@ class MaximalSet:
 
     def input_intervals(self, v: float, h_next: float, vL_next: float) -> list[tuple[float, float]]:
         """Inputs u in U with ``(v + dt u, h_next, vL_next)`` in C (one interval or none)."""
+        _euler_only(self.params, "input_intervals (a next gap that does not depend on the input)")
         return speeds_to_inputs(self.params, v, self.speed_intervals(h_next, vL_next))
 
 
@@ -331,6 +360,7 @@ class PolyhedralSet:
         return self._axis_intervals(2, (v, h, 0.0))
 
     def input_intervals(self, v: float, h_next: float, vL_next: float) -> list[tuple[float, float]]:
+        _euler_only(self.params, "input_intervals (a next gap that does not depend on the input)")
         return speeds_to_inputs(self.params, v, self.speed_intervals(h_next, vL_next))
 
 
@@ -350,13 +380,45 @@ def speeds_to_inputs(p: CarFollowingParams, v: float, speeds) -> list[tuple[floa
     return out
 
 
+def _euler_only(p: CarFollowingParams, what: str):
+    if p.exact:
+        raise ValueError(f"{what} is built on (7.3)'s Euler step; these parameters declare exact integration")
+
+
 def admissible_inputs(S, x) -> list[tuple[float, float]]:
-    """Self-safe inputs (7.4) at ``x = (v, h, v_L)``: ``f(x, u, D) ⊆ C``."""
+    """Self-safe inputs (7.4) at ``x = (v, h, v_L)``: ``f(x, u, D) ⊆ C`` (under exact integration also the gap
+    inside the step: ``_exact_admissible_inputs``)."""
     v, h, vL = (float(a) for a in x)
     p = S.params
     if math.isinf(h):
         return speeds_to_inputs(p, v, [(0.0, p.v_max)])
+    if p.exact:
+        return _exact_admissible_inputs(S, v, h, vL)
     return S.input_intervals(v, h + p.dt * (vL - v), float(p.worst_lead_speed(vL)))
+
+
+def _exact_admissible_inputs(S, v: float, h: float, vL: float) -> list[tuple[float, float]]:
+    """``[u_min, u*]``: the inputs holding which the gap stays ``>= h_min`` through the step and the next state
+    stays in the closed-form set, whatever the lead does (``exact.keeps_set``; monotone in u, so one interval
+    found by bisection). Aims ``INNER`` inside the set, like the Euler intervals; full braking from a state in
+    the set is always self-safe."""
+    p = S.params
+    if not isinstance(S, MaximalSet):
+        raise ValueError("exact integration has the closed-form set only (MaximalSet)")
+    if not (0 <= v <= p.v_max and 0 <= vL <= p.v_max):
+        return []
+    hi = p.u_max
+    while v + p.dt * hi > p.v_max:  # the next speed stays in [0, v_max]
+        hi = min(math.nextafter(hi, -math.inf), (p.v_max - v) / p.dt)
+    if hi < p.u_min:
+        return []
+    top = exact.highest_input(-p.u_min, -p.d_min, p.dt, p.v_max, p.h_min + INNER, v, h, vL, p.u_min, hi,
+                              INPUT_BISECTIONS)
+    if not math.isnan(top):
+        return [(p.u_min, top)]
+    # Within INNER of the boundary: full braking continues the very trajectory whose least gap is the floor,
+    # so from a state in the set it keeps the gap and the next state there (only rounding could say otherwise).
+    return [(p.u_min, p.u_min)] if _floor(p, v, h, vL) >= p.h_min else []
 
 
 # ---- the polyhedral computation ------------------------------------------------------
@@ -395,8 +457,9 @@ def safe_set(p: CarFollowingParams, tighten: float = 0.0) -> Polyhedron:
 
 
 def compute_polyhedral(p: CarFollowingParams, max_iterations: int = 400, progress=None) -> PolyhedralSet:
-    if p.has_drag:
-        raise ValueError("the polyhedral car-following set is computed for (7.3) without drag; use MaximalSet")
+    if p.has_drag or p.exact:
+        raise ValueError("the polyhedral car-following set is computed for (7.3) without drag and with its Euler "
+                         "step; use MaximalSet")
     res = outside_in(worst_case_system(p), Region([safe_set(p, H_TIGHTEN)]), max_iterations=max_iterations,
                      progress=progress, margin=0.0)
     if not res.converged:

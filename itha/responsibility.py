@@ -60,6 +60,10 @@ class EgoSupervisor:
         whose parameters also give their acceleration bound ``u_max``."""
         if overapprox not in OVERAPPROXIMATIONS:
             raise ValueError(f"unknown over-approximation {overapprox!r}; choose from {OVERAPPROXIMATIONS}")
+        if any(prm.exact for prm in (params.car_following, invariant.params, getattr(others_invariant, "params", None))
+               if prm is not None):
+            raise ValueError("responsibility (7.5) moves every car by (7.3)'s Euler step (the reset maps of "
+                             "itha.road); exact integration is not implemented there")
         self.params = params
         self.S = invariant
         self.S_others = invariant if others_invariant is None else others_invariant

@@ -68,6 +68,9 @@ class TrafficSupervisor:
         """``params``: the ego's bounds (its braking ``u_min``, its leaders' ``d_min``); ``others``: the
         traffic's (their braking and acceleration, their leaders' — possibly the ego's — braking);
         ``wreck_margin`` [m]: how far an impact may push a car at risk back (``GuardianConfig``)."""
+        if params.exact or (others is not None and others.exact):
+            raise ValueError("the traffic rules move every car by (7.3)'s Euler step; exact integration is not "
+                             "implemented there")
         self.params = params
         self.others = params if others is None else others
         self.S = MaximalSet(params)
