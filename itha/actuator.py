@@ -1,0 +1,277 @@
+"""Car following for an ego that cannot brake at once: a jerk bound and a reaction delay in the set.
+
+(7.3) lets the ego's acceleration jump to any value of ``U`` from one step to the next. A real actuator
+cannot: its acceleration changes by at most ``jerk`` m/s^3, and a command may act only ``delay`` steps after it
+is given. ``Actuator`` declares both; ``ActuatedSet`` is the maximal robust controlled invariant set of the
+car-following agent with that actuator, the cars moved exactly (``CarFollowingParams(integration="exact")``).
+
+State ``(v, h, v_L, a, q_1, ..., q_n)``: ego speed, gap, lead speed, the ego's acceleration now and the
+``n = delay`` accelerations already commanded (``q_1`` is reached at the end of this step). A command ``c`` is
+the acceleration the ego reaches ``n + 1`` steps on, within ``U`` and within ``jerk dt`` of the one before it.
+With a finite ``jerk`` the acceleration ramps linearly between the commanded values over each step (the
+vehicle of CommonRoad's ACC falsification suite: jerk held over a step); with ``jerk = inf`` it jumps to each
+commanded value at the step's start and holds it, so ``Actuator()`` is the exact model itself (tested).
+
+Why the set is ``{floor >= h_min}``, ``floor`` the least gap over all time when the ego goes through its queue
+and then brakes as hard as it can (each command ``jerk dt`` below the last down to ``u_min``, held to
+standstill) while the
+lead brakes at ``d_min`` from now: any admissible command sequence gives the ego an acceleration at least
+this one's at every instant, hence a speed and a position at least these (a car that stops stays, unless its
+acceleration turns positive); any lead within its bounds is at every instant at least as far as the one braking
+hardest. So a state outside fails whatever the ego does, and from a state inside the braking command keeps the
+next state inside (its floor continues the same trajectory). Admissible commands keep the next state inside
+and, without delay, the gap through the step; more throttle is worse at every instant, so they are one
+interval ``[c_min, c*]``.
+
+The gap between two cars of piecewise-polynomial motion is evaluated exactly: the cars' motion is cut where
+either changes jerk, stops or starts; on each piece the relative speed is a quadratic, and the gap's least
+value is at a piece's end or at a root of it.
+
+The ego's speed is not bounded above here (a speed limit is the driver's business, not the gap's); the lead's
+speed needs no bound either.
+
+``lag`` (a first-order time constant) is declared but refused: its braking profile is exponential, and the
+least gap would need a transcendental root; a lag can be declared conservatively as a delay plus a jerk bound.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from itha.car_following import INNER, CarFollowingParams
+
+BISECTIONS = 60
+INF = math.inf
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """What the ego's actuator can do: ``|da/dt| <= jerk`` [m/s^3]; a command acts ``delay`` steps after it is
+    given; ``lag`` [s] a first-order time constant (not implemented: refused)."""
+
+    jerk: float = INF
+    delay: int = 0
+    lag: float = 0.0
+
+    def __post_init__(self):
+        if not self.jerk > 0:
+            raise ValueError(f"Actuator.jerk must be positive (inf: none), got {self.jerk}")
+        if not (isinstance(self.delay, int) and self.delay >= 0):
+            raise ValueError(f"Actuator.delay is a whole number of steps >= 0, got {self.delay!r}")
+        if self.lag != 0.0:
+            raise ValueError("Actuator.lag is not implemented: a first-order lag brakes exponentially and the set "
+                             "has no exact least gap for it; declare the lag as a delay and a jerk bound instead")
+
+
+# ---- piecewise-polynomial motion -------------------------------------------------------------------
+@dataclass(frozen=True)
+class Piece:
+    """Motion with constant jerk from ``t0`` to ``t1``: ``x(t0 + s) = x + v s + a s^2/2 + j s^3/6``."""
+
+    t0: float
+    t1: float
+    x: float
+    v: float
+    a: float
+    j: float
+
+    def at(self, t: float) -> tuple[float, float, float]:
+        s = t - self.t0
+        return (self.x + s * (self.v + s * (self.a / 2 + s * self.j / 6)), self.v + s * (self.a + s * self.j / 2),
+                self.a + s * self.j)
+
+
+def _roots(c0: float, c1: float, c2: float, upto: float) -> list[float]:
+    """The roots of ``c0 + c1 s + c2 s^2`` in ``(0, upto)``."""
+    if c2 == 0.0:
+        roots = [-c0 / c1] if c1 != 0.0 else []
+    else:
+        disc = c1 * c1 - 4 * c2 * c0
+        if disc < 0:
+            return []
+        q = -0.5 * (c1 + math.copysign(math.sqrt(disc), c1))
+        roots = [q / c2] + ([c0 / q] if q != 0.0 else [])
+    return sorted(r for r in roots if 0.0 < r < upto)
+
+
+def _first_root(c0: float, c1: float, c2: float, upto: float) -> float:
+    roots = _roots(c0, c1, c2, upto)
+    return roots[0] if roots else INF
+
+
+def motion(v: float, a: float, segments) -> list[Piece]:
+    """The pieces of a car's motion from speed ``v >= 0`` and acceleration ``a`` through ``segments``:
+    ``(duration, jerk, start)`` each (``start``: the acceleration jumps to it at the segment's start; None:
+    it goes on from where it is). The last duration may be inf. A car whose speed reaches 0 stands (its
+    acceleration goes on changing) until its acceleration turns positive."""
+    out, t, x = [], 0.0, 0.0
+    for duration, jerk, start in segments:
+        if start is not None:
+            a = start
+        end = t + duration
+        while t < end:
+            left = end - t
+            standing = v <= 0.0 and (a < 0.0 or (a == 0.0 and jerk <= 0.0))
+            if standing:
+                s = -a / jerk if jerk > 0.0 else INF     # when the acceleration turns positive
+                s = min(s, left)
+                out.append(Piece(t, t + s, x, 0.0, 0.0, 0.0))
+                v, a = 0.0, (0.0 if s < left else a + jerk * s) if math.isfinite(s) else a
+            else:
+                v = max(v, 0.0)
+                s = min(_first_root(v, a, jerk / 2, left), left)   # speed back to 0
+                piece = Piece(t, t + s, x, v, a, jerk)
+                out.append(piece)
+                if math.isfinite(s):
+                    x, v, a = piece.at(t + s)
+                    v = 0.0 if s < left else max(v, 0.0)
+            if not math.isfinite(s):
+                return out
+            t += s
+    return out
+
+
+def _locate(pieces: list[Piece], t: float) -> Piece:
+    for p in pieces:
+        if t <= p.t1:
+            return p
+    return pieces[-1]
+
+
+def least_gap(h: float, ego: list[Piece], lead: list[Piece], horizon: float) -> float:
+    """``min over 0 <= t <= horizon`` of ``h + x_lead(t) - x_ego(t)``, exactly (see the module docstring)."""
+    cuts = sorted({0.0, horizon} | {p.t0 for p in ego + lead if p.t0 < horizon}
+                  | {p.t1 for p in ego + lead if p.t1 < horizon})
+    best = INF
+
+    def gap(t):
+        return h + _locate(lead, t).at(t)[0] - _locate(ego, t).at(t)[0]
+
+    for t0, t1 in zip(cuts, cuts[1:]):
+        best = min(best, gap(t0), gap(t1))
+        mid = (t0 + t1) / 2
+        pe, pl = _locate(ego, mid), _locate(lead, mid)   # the pieces that cover (t0, t1)
+        _, ve, ae = pe.at(t0)
+        _, vl, al = pl.at(t0)
+        for r in _roots(vl - ve, al - ae, (pl.j - pe.j) / 2, t1 - t0):
+            best = min(best, gap(t0 + r))
+    return best
+
+
+def _rest_time(pieces: list[Piece]) -> float:
+    """When the car's last piece starts (it then stands, or moves on the same polynomial)."""
+    return pieces[-1].t0
+
+
+# ---- the set ------------------------------------------------------------------------------------------
+class ActuatedSet:
+    """The maximal RCIS of the car-following agent whose ego has ``actuator`` (see the module docstring)."""
+
+    kind = "actuated"
+
+    def __init__(self, params: CarFollowingParams, actuator: Actuator = Actuator()):
+        if not params.exact:
+            raise ValueError("an actuator's dynamics are integrated exactly: use CarFollowingParams(integration="
+                             "\"exact\")")
+        self.params, self.actuator = params, actuator
+
+    @property
+    def state_size(self) -> int:
+        return 4 + self.actuator.delay
+
+    def _check(self, x) -> tuple:
+        x = tuple(float(c) for c in x)
+        if len(x) != self.state_size:
+            raise ValueError(f"the state is (v, h, v_L, a, q_1..q_{self.actuator.delay}): {self.state_size} numbers, "
+                             f"got {len(x)}")
+        return x
+
+    def _step(self, start: float, end: float) -> tuple:
+        """One step's segment from acceleration ``start`` to the commanded ``end``."""
+        dt, jerk = self.params.dt, self.actuator.jerk
+        return (dt, 0.0, end) if math.isinf(jerk) else (dt, (end - start) / dt, None)
+
+    def _braking(self, a: float) -> list:
+        """From acceleration ``a``: the hardest command sequence (each ``jerk dt`` below the last, down to
+        ``u_min``), the acceleration ramping over each step as the actuator does, held to standstill."""
+        p, jerk = self.params, self.actuator.jerk
+        if math.isinf(jerk):
+            return [(INF, 0.0, p.u_min)]
+        out = []
+        while a > p.u_min:
+            target = max(p.u_min, a - jerk * p.dt)
+            out.append(self._step(a, target))
+            a = target
+        return out + [(INF, 0.0, None)]
+
+    def _queue_segments(self, a: float, queue) -> list:
+        out, prev = [], a
+        for q in queue:
+            out.append(self._step(prev, q))
+            prev = q
+        return out
+
+    def ego_braking(self, x) -> list[Piece]:
+        v, _, _, a, *queue = self._check(x)
+        return motion(v, a, self._queue_segments(a, queue) + self._braking(queue[-1] if queue else a))
+
+    def lead_braking(self, vL: float) -> list[Piece]:
+        return motion(vL, self.params.d_min, [(INF, 0.0, None)])
+
+    def floor(self, x) -> float:
+        """The least gap over all time, the ego braking as hard as its actuator allows after its queue, the lead
+        at ``d_min`` from now."""
+        v, h, vL, *_ = self._check(x)
+        ego, lead = self.ego_braking(x), self.lead_braking(vL)
+        return least_gap(h, ego, lead, max(_rest_time(ego), _rest_time(lead)) + 1.0)
+
+    def contains(self, x) -> bool:
+        v, h, vL, a, *queue = self._check(x)
+        p = self.params
+        if not (v >= 0 and vL >= 0 and all(p.u_min <= q <= p.u_max for q in (a, *queue))):
+            return False
+        return math.isinf(h) or self.floor(x) >= p.h_min - INNER   # membership allows rounding (INNER)
+
+    def command_bounds(self, x) -> tuple[float, float]:
+        """The commands the actuator accepts: within ``U`` and within ``jerk dt`` of the last commanded value."""
+        _, _, _, a, *queue = self._check(x)
+        last, p, reach = (queue[-1] if queue else a), self.params, self.actuator.jerk * self.params.dt
+        return max(p.u_min, last - reach), min(p.u_max, last + reach)
+
+    def next_state(self, x, command: float, lead_accel: float) -> tuple:
+        """The state a step on with ``command`` given and the lead holding ``lead_accel`` (exact)."""
+        v, h, vL, a, *queue = self._check(x)
+        first = (queue + [command])[0]
+        ego = motion(v, a, [self._step(a, first), (INF, 0.0, None)])
+        lead = motion(vL, lead_accel, [(INF, 0.0, None)])
+        dt = self.params.dt
+        xe, ve, _ = _locate(ego, dt).at(dt)
+        xl, vl, _ = _locate(lead, dt).at(dt)
+        return (max(ve, 0.0), h + xl - xe, max(vl, 0.0), first, *(queue + [command])[1:])
+
+    def keeps(self, x, command: float, threshold: float) -> bool:
+        """``command`` keeps the next state's floor, and without delay the gap through the step, at or above
+        ``threshold`` whatever the lead does."""
+        v, h, vL, a, *queue = self._check(x)
+        nxt = self.next_state(x, command, self.params.d_min)
+        if not queue:
+            ego = motion(v, a, [self._step(a, command)])
+            if least_gap(h, ego, self.lead_braking(vL), self.params.dt) < threshold:
+                return False
+        return math.isinf(nxt[1]) or self.floor(nxt) >= threshold
+
+    def admissible_commands(self, x) -> list[tuple[float, float]]:
+        """Self-safe commands: ``[c_min, c*]``, or ``[]`` where none is (the state is outside the set)."""
+        if not self.contains(x):
+            return []
+        lo, hi = self.command_bounds(x)
+        threshold = self.params.h_min + INNER
+        if self.keeps(x, hi, threshold):
+            return [(lo, hi)]
+        if not self.keeps(x, lo, threshold):
+            return [(lo, lo)]    # from a state inside, braking continues the floor's trajectory (rounding aside)
+        good, bad = lo, hi
+        for _ in range(BISECTIONS):
+            mid = 0.5 * (good + bad)
+            good, bad = (mid, bad) if self.keeps(x, mid, threshold) else (good, mid)
+        return [(lo, good)]

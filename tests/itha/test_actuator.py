@@ -1,0 +1,168 @@
+"""An ego that cannot brake at once (``itha.actuator``): its motion against a fine numerical integration, the set
+with no actuator dynamics against the exact closed form, and invariance with a jerk bound and a delay."""
+import math
+
+import numpy as np
+import pytest
+
+from itha.actuator import Actuator, ActuatedSet, least_gap, motion
+from itha.car_following import CarFollowingParams, MaximalSet, admissible_inputs, headway_floor
+
+FINE = 1e-4
+
+
+def integrate(v, a, segments, T):
+    """The same motion by small steps (semi-implicit, a car at standstill waits for a positive acceleration):
+    the referee of ``motion``. Returns the times and positions."""
+    times, xs, t, x = [0.0], [0.0], 0.0, 0.0
+    for duration, jerk, start in segments:
+        if start is not None:
+            a = start
+        end = min(t + duration, T)
+        while t < end - 1e-12:
+            h = min(FINE, end - t)
+            a_mid = a + jerk * h / 2
+            v_new = v + a_mid * h
+            if v_new < 0.0 or (v == 0.0 and a_mid <= 0.0):
+                frac = v / (v - v_new) if v > 0 else 0.0
+                x += v * h * frac / 2
+                v_new = 0.0
+            else:
+                x += (v + v_new) / 2 * h
+            v, a, t = v_new, a + jerk * h, t + h
+            times.append(t)
+            xs.append(x)
+    return np.array(times), np.array(xs)
+
+
+def position(pieces, t):
+    for p in pieces:
+        if t <= p.t1:
+            return p.at(t)[0]
+    return pieces[-1].at(t)[0]
+
+
+def random_segments(rng):
+    out = []
+    for _ in range(rng.integers(1, 5)):
+        start = rng.choice([None, rng.uniform(-8, 3)])
+        out.append((rng.uniform(0.05, 1.0), rng.choice([0.0, rng.uniform(-20, 20)]), start))
+    return out
+
+
+def test_motion_matches_a_fine_integration():
+    rng = np.random.default_rng(0)
+    for _ in range(60):
+        v, a = rng.uniform(0, 20), rng.uniform(-8, 3)
+        segs = random_segments(rng)
+        T = sum(d for d, _, _ in segs)
+        pieces = motion(v, a, segs)
+        times, xs = integrate(v, a, segs, T)
+        for t, x in zip(times[::200], xs[::200]):
+            assert position(pieces, t) == pytest.approx(x, abs=2e-3)
+
+
+def test_least_gap_is_the_least_of_a_dense_grid():
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        ego = motion(rng.uniform(0, 30), rng.uniform(-8, 3), random_segments(rng))
+        lead = motion(rng.uniform(0, 30), rng.uniform(-8, 3), random_segments(rng))
+        T, h = rng.uniform(0.1, 3.0), rng.uniform(0, 30)
+        grid = np.linspace(0, T, 3001)
+        dense = min(h + position(lead, t) - position(ego, t) for t in grid)
+        m = least_gap(h, ego, lead, T)
+        assert m <= dense + 1e-9
+        assert m >= dense - 40 * (T / 3000) ** 2 - 1e-9   # jerk and acceleration bound any dip between points
+
+
+def test_without_actuator_dynamics_the_set_is_the_exact_closed_form():
+    p = CarFollowingParams(integration="exact", h_min=0.5, u_min=-8, d_min=-7, u_max=3, d_max=3)
+    A, S, rng = ActuatedSet(p), MaximalSet(p), np.random.default_rng(2)
+    for _ in range(300):
+        v, vL, h = *rng.uniform(0, 30, 2), rng.uniform(0, 40)
+        assert A.floor((v, h, vL, 0.0)) == pytest.approx(float(headway_floor(p, [v], [h], [vL])[0]), abs=1e-9)
+        assert A.contains((v, h, vL, 0.0)) == S.contains([[v, h, vL]])[0]
+        ours, theirs = A.admissible_commands((v, h, vL, 0.0)), admissible_inputs(S, (v, h, vL))
+        assert len(ours) == len(theirs)
+        for (a, b), (c, d) in zip(ours, theirs):
+            assert a == c and b == pytest.approx(d, abs=1e-9)
+
+
+def test_actuator_declarations_are_checked():
+    with pytest.raises(ValueError, match="lag is not implemented"):
+        Actuator(lag=0.3)
+    with pytest.raises(ValueError, match="whole number of steps"):
+        Actuator(delay=0.2)
+    with pytest.raises(ValueError, match="jerk"):
+        Actuator(jerk=0.0)
+    with pytest.raises(ValueError, match="exact"):
+        ActuatedSet(CarFollowingParams())
+    with pytest.raises(ValueError, match="5 numbers"):
+        ActuatedSet(CarFollowingParams(integration="exact"), Actuator(delay=1)).floor((10, 20, 10, 0))
+
+
+def edge_state(A, rng):
+    """A state whose gap is 0 to 2 m above the least the set allows (some closing slowly)."""
+    p = A.params
+    v, vL = rng.uniform(0, 30, 2)
+    if rng.uniform() < 0.4:
+        vL = max(v - rng.uniform(0, 1.5), 0.0)
+    a = rng.uniform(p.u_min, p.u_max)
+    lo, hi = p.u_min, p.u_max
+    queue, last = [], a
+    for _ in range(A.actuator.delay):
+        reach = A.actuator.jerk * p.dt
+        last = rng.uniform(max(lo, last - reach), min(hi, last + reach))
+        queue.append(last)
+    base = A.floor((v, 0.0, vL, a, *queue))
+    h = p.h_min - base + rng.choice([0.0, 1e-6, rng.uniform(0, 2)])
+    return (v, h, vL, a, *queue)
+
+
+EQUAL, STRONGER_EGO = dict(u_min=-8.0, d_min=-8.0, u_max=3.0, d_max=3.0), dict(u_min=-10.0, d_min=-5.0, u_max=3.0,
+                                                                                  d_max=3.0)
+
+
+@pytest.mark.parametrize("jerk,delay,bounds", [(10.0, 0, EQUAL), (5.0, 0, EQUAL), (10.0, 2, EQUAL), (math.inf, 1, EQUAL),
+                                               (10.0, 0, STRONGER_EGO), (5.0, 1, STRONGER_EGO),
+                                               (math.inf, 0, STRONGER_EGO)])
+def test_actuated_set_is_invariant_under_any_lead_within_its_bounds(jerk, delay, bounds):
+    """Falsifier: from states at the set's edge, any admissible command, a lead whose acceleration changes five
+    times a step within its bounds: the gap on a fine grid never goes below ``h_min`` and every next state has an
+    admissible command again, for 15 steps."""
+    p = CarFollowingParams(integration="exact", h_min=0.5, **bounds)
+    A, rng = ActuatedSet(p, Actuator(jerk=jerk, delay=delay)), np.random.default_rng(4)
+    tried = 0
+    for _ in range(60):
+        x = edge_state(A, rng)
+        if not A.contains(x):
+            continue
+        tried += 1
+        for _ in range(15):
+            commands = A.admissible_commands(x)
+            assert commands, f"no admissible command at {x}"
+            lo, hi = commands[0]
+            c = rng.choice([lo, hi, rng.uniform(lo, hi)])
+            v, h, vL, a, *queue = x
+            first = (queue + [c])[0]
+            ego = motion(v, a, [A._step(a, first)])
+            lead_accels = [rng.choice([p.d_min, p.d_max, rng.uniform(p.d_min, p.d_max)]) for _ in range(5)]
+            lead = motion(vL, lead_accels[0], [(p.dt / 5, 0.0, acc) for acc in lead_accels])
+            gaps = [h + position(lead, t) - position(ego, t) for t in np.linspace(0, p.dt, 21)]
+            assert min(gaps) >= p.h_min - 1e-9
+            ve = max(ego[-1].at(p.dt)[1], 0.0) if ego[-1].v or ego[-1].a or ego[-1].j else 0.0
+            vl = max(lead[-1].at(p.dt)[1], 0.0) if lead[-1].v or lead[-1].a or lead[-1].j else 0.0
+            x = (ve, gaps[-1], vl, first, *(queue + [c])[1:])
+            assert A.contains(x), f"left the set at {x}"
+    assert tried > 30
+
+
+def test_a_lead_braking_at_once_meets_the_unaware_guardian_and_never_the_actuated_one(benchmark_module):
+    """``benchmarks/actuator_probe.py``: a jerk-limited ego (10 m/s^3) whose driver presses +1.5 m/s^2, a lead that
+    brakes at -8 at once. The set that lets the acceleration jump is touched; the set that knows the actuator
+    never goes below 1 mm."""
+    bench = benchmark_module("actuator_probe")
+    unaware, actuated = bench.probe("unaware", "jerk 10", 12, seed=3), bench.probe("actuated", "jerk 10", 12, seed=3)
+    assert unaware["contacts"] > 0
+    assert actuated["contacts"] == 0 and actuated["floor_deficits"] == 0
+    assert actuated["steps_without_admissible_command"] == 0
