@@ -307,4 +307,5 @@ class Guardian(gym.Wrapper, gym.utils.RecordConstructorArgs):
         from guardian.wrappers.panel import with_panel
 
         record = self.last_record or {"active_set": "-", "reasons": ["episode start"]}
-        return with_panel(frame, record, self.supervision.acceleration_bounds(self.env.unwrapped))
+        base = self.env.unwrapped
+        return with_panel(frame, record, self.supervision.acceleration_bounds(base), self.supervision.lateral_axis(base))

@@ -3,13 +3,14 @@
 Labelled fields, one row each::
 
     set: cautious      valid intentions: aggressive, cautious      guardian: OVERRIDE (throttle)
-    a_ex [m/s^2]  -3 |====[admissible]====|  3     | proposed   | applied
+    a_ex [m/s^2]    -3 |====[admissible]====|  3     | proposed   | applied
+    steering [rad]  -0.785 |--------|----------|  0.785   (the second input: steering, or v_ey)
     why: <the reasons of the last override>
     cars: ■ ego  ■ lead  ■ traffic  ■ crashed
 
-The admissible acceleration band is green on an axis over the input bounds, the agent's proposed
-acceleration a red tick and the applied one a black tick; the last row is the legend of the car
-colours of the frame (``envs.vehicles.COLOURS``).
+Each input has an axis over its bounds: the admissible band green (where the guardian has one), the agent's
+proposed input a red tick and the applied one a black tick, so a steering override shows on the steering axis;
+the last row is the legend of the car colours of the frame (``envs.vehicles.COLOURS``).
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import functools
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-PANEL_HEIGHT = 92  # [px]
+PANEL_HEIGHT = 114  # [px]
 ROW = 22           # [px] per row
 FONT_SIZE = 13     # [px]
 GREY, BLACK, GREEN, RED, DARK_RED = (95, 95, 95), (0, 0, 0), (60, 180, 80), (220, 40, 40), (150, 0, 0)
@@ -55,7 +56,41 @@ def _verdict(record: dict) -> str:
     return f"OVERRIDE ({record.get('changed')})"
 
 
-def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float]) -> np.ndarray:
+def _axis(draw, y: int, w: int, label: str, bounds, band, record: dict, index: int, legend: bool) -> None:
+    """One input's axis over its bounds: the admissible band, the proposed and applied ticks (input ``index``)."""
+    lo, hi = bounds
+    lo_text = f"{lo:.3g}"
+    draw.text((8, y), label, fill=GREY, font=_font())
+    x0 = 8 + int(draw.textlength("steering [rad]", font=_font())) + 10 + int(draw.textlength("-0.785", font=_font())) + 6
+    x1 = w - 300
+    yc = y + 8
+
+    def px(a: float) -> int:
+        return int(round(x0 + (min(max(a, lo), hi) - lo) / (hi - lo) * (x1 - x0)))
+
+    draw.text((x0 - 6 - int(draw.textlength(lo_text, font=_font())), y), lo_text, fill=GREY, font=_font())
+    draw.text((x1 + 6, y), f"{hi:.3g}", fill=GREY, font=_font())
+    draw.line([(x0, yc), (x1, yc)], fill=(120, 120, 120), width=1)
+    draw.line([(px(0.0), yc - 3), (px(0.0), yc + 3)], fill=(120, 120, 120), width=1)
+    for a, b in band or []:
+        draw.rectangle([px(a), yc - 5, px(b), yc + 5], fill=GREEN)
+    for key, colour in (("proposed_input", RED), ("applied_input", BLACK)):
+        u = record.get(key)
+        if u is not None and len(u) > index:
+            draw.line([(px(u[index]), yc - 9), (px(u[index]), yc + 9)], fill=colour, width=3)
+    if not legend:
+        return
+    lx = x1 + 40
+    for name, colour, bar in (("admissible", GREEN, False), ("proposed", RED, True), ("applied", BLACK, True)):
+        if bar:
+            draw.line([(lx + 5, yc - 7), (lx + 5, yc + 7)], fill=colour, width=3)
+        else:
+            draw.rectangle([lx, yc - 5, lx + 12, yc + 5], fill=colour)
+        draw.text((lx + 16, y), name, fill=GREY, font=_font())
+        lx += 16 + int(draw.textlength(name, font=_font())) + 14
+
+
+def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float], lateral: tuple | None = None) -> np.ndarray:
     """``frame`` (H x W x 3) with the panel appended below it.
 
     Parameters
@@ -67,6 +102,9 @@ def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float]) -> 
         ``admissible_acceleration``, ``proposed_input``, ``applied_input``, ``reasons``).
     bounds : (float, float)
         The acceleration axis (the input bounds).
+    lateral : (str, (float, float)), optional
+        The second input's axis: its label and bounds (steering on roads, lateral speed on the overtake road),
+        with the band ``admissible_lateral`` where the guardian has one.
 
     Returns
     -------
@@ -85,35 +123,10 @@ def with_panel(frame: np.ndarray, record: dict, bounds: tuple[float, float]) -> 
     _field(draw, x, y, "guardian", _verdict(record) if overridden else "pass-through", DARK_RED if overridden else BLACK)
 
     y += ROW
-    label = "a_ex [m/s^2]"
-    draw.text((8, y), label, fill=GREY, font=_font())
-    lo, hi = bounds
-    lo_text = f"{lo:g}"
-    x0 = 8 + int(draw.textlength(label, font=_font())) + 10 + int(draw.textlength(lo_text, font=_font())) + 6
-    x1 = w - 300
-    yc = y + 8
-
-    def px(a: float) -> int:
-        return int(round(x0 + (min(max(a, lo), hi) - lo) / (hi - lo) * (x1 - x0)))
-
-    draw.text((x0 - 6 - int(draw.textlength(lo_text, font=_font())), y), lo_text, fill=GREY, font=_font())
-    draw.text((x1 + 6, y), f"{hi:g}", fill=GREY, font=_font())
-    draw.line([(x0, yc), (x1, yc)], fill=(120, 120, 120), width=1)
-    draw.line([(px(0.0), yc - 3), (px(0.0), yc + 3)], fill=(120, 120, 120), width=1)
-    for a, b in record.get("admissible_acceleration") or []:
-        draw.rectangle([px(a), yc - 5, px(b), yc + 5], fill=GREEN)
-    for key, colour in (("proposed_input", RED), ("applied_input", BLACK)):
-        u = record.get(key)
-        if u:
-            draw.line([(px(u[0]), yc - 9), (px(u[0]), yc + 9)], fill=colour, width=3)
-    lx = x1 + 40
-    for name, colour, bar in (("admissible", GREEN, False), ("proposed", RED, True), ("applied", BLACK, True)):
-        if bar:
-            draw.line([(lx + 5, yc - 7), (lx + 5, yc + 7)], fill=colour, width=3)
-        else:
-            draw.rectangle([lx, yc - 5, lx + 12, yc + 5], fill=colour)
-        draw.text((lx + 16, y), name, fill=GREY, font=_font())
-        lx += 16 + int(draw.textlength(name, font=_font())) + 14
+    _axis(draw, y, w, "a_ex [m/s^2]", bounds, record.get("admissible_acceleration"), record, 0, legend=True)
+    if lateral is not None:
+        y += ROW
+        _axis(draw, y, w, lateral[0], lateral[1], record.get("admissible_lateral"), record, 1, legend=False)
 
     y += ROW
     reasons = "; ".join(record.get("reasons") or []) or "-"

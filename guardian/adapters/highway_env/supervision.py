@@ -56,6 +56,9 @@ class Supervision(Protocol):
     def acceleration_bounds(self, base) -> tuple:
         """The ego's acceleration bounds (for the panel)."""
 
+    def lateral_axis(self, base) -> tuple:
+        """The ego's second input for the panel: ``(label, (low, high))``."""
+
 
 class _Supervision:
     """What both families share: the configuration, the road read from the env, the scene reader."""
@@ -147,6 +150,9 @@ class OvertakeSupervision(_Supervision):
     def acceleration_bounds(self, base) -> tuple:
         a = base.params.a_ex_bounds[1]
         return -a, a
+
+    def lateral_axis(self, base) -> tuple:
+        return "v_ey [m/s]", tuple(base.params.v_ey_bounds)
 
 
 class RoadSupervision(_Supervision):
@@ -254,3 +260,7 @@ class RoadSupervision(_Supervision):
 
     def acceleration_bounds(self, base) -> tuple:
         return -self.config.traffic_accel, self.config.traffic_accel
+
+    def lateral_axis(self, base) -> tuple:
+        steer = self._objects[0][0].kin.max_steering if self._objects else np.pi / 4
+        return "steering [rad]", (-steer, steer)

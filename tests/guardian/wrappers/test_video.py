@@ -115,3 +115,17 @@ def test_the_panel_names_a_meta_override_by_its_actions():
     meta = {"proposed": "LANE_RIGHT", "applied": "SLOWER", "changed": "throttle", "refused_lane_change": True}
     assert _verdict(meta) == "OVERRIDE: LANE_RIGHT -> SLOWER (lane change refused)"
     assert _verdict({"proposed": [1.0, 0.1], "applied": [0.5, 0.1], "changed": "throttle"}) == "OVERRIDE (throttle)"
+
+
+def test_a_steering_override_shows_on_the_steering_axis():
+    """The second input has its own axis: proposed and applied steering ticks where they are, apart."""
+    frame = np.full((50, 900, 3), 100, dtype=np.uint8)
+    record = {"active_set": "itha", "overridden": True, "changed": "steering", "admissible_acceleration": [[-5, 5]],
+              "proposed_input": [0.0, 0.6], "applied_input": [0.0, -0.6], "reasons": ["steering into lane 2"]}
+    without = with_panel(frame, record, (-5.0, 5.0))[-PANEL_HEIGHT:]
+    panel = with_panel(frame, record, (-5.0, 5.0), ("steering [rad]", (-0.785, 0.785)))[-PANEL_HEIGHT:]
+    steering_row = panel[2 * 22 + 3:3 * 22 + 3]
+    reds = np.nonzero((steering_row == (220, 40, 40)).all(axis=2))[1]
+    blacks = np.nonzero((steering_row == (0, 0, 0)).all(axis=2))[1]
+    assert len(reds) and len(blacks) and reds.mean() > blacks.mean() + 100   # +0.6 right of -0.6
+    assert _count(panel, (220, 40, 40)) > _count(without, (220, 40, 40))     # a second proposed tick
