@@ -408,3 +408,17 @@ def test_serve_refuses_a_busy_port_before_it_loads_the_sets(monkeypatch, capsys)
         port = held.getsockname()[1]
         assert main(["serve", "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_an_interrupted_rollout_leaves_at_once_and_its_recording_is_whole(tmp_path):
+    """Ctrl-C during a rollout: the one line, exit 130, no traceback, out well before the interpreter would have
+    torn down its modules (1-2 s under load), and the rerun recording written so far reads back."""
+    from guardian.recording.rerun import read_texts
+
+    rrd = tmp_path / "run.rrd"
+    rc, err, _, stopped = _interrupt(["rollout", "--env", "highway-fast-v0", "--episodes", "20", "--rerun", str(rrd)],
+                                     tmp_path / "cache", "[rollout highway-fast-v0 random] 2/", "group", signal.SIGINT)
+    assert rc == 130 and "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "guardian rollout: interrupted by SIGINT"
+    assert stopped < 10, stopped
+    assert read_texts(rrd, "/events/episode")[:2] == ["episode 0 starts", "episode 1 starts"]
