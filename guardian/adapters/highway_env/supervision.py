@@ -13,6 +13,7 @@ The gymnasium wrapper (``guardian.wrappers.guardian.Guardian``) asks these; it k
 """
 from __future__ import annotations
 
+import sys
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -93,6 +94,25 @@ class _Supervision:
         return self._objects
 
 
+def first_use_notice(params) -> str:
+    """What building the overtake library for ``params`` on first use costs and how to build it ahead; "" when the
+    cache holds all three sets (the entries' file names are the cache keys, so this reads no set)."""
+    from intention.library import SET_NAMES, LibrarySettings, _payload
+    from intention.params import OvertakeParams
+    from rcis.cache import RegionCache, payload_key
+
+    cache, settings = RegionCache(), LibrarySettings()
+    bnd = _payload("bounded_velocity", params, settings, "C_left")
+    payloads = [bnd] + [_payload(n, params, settings, payload_key(bnd)) for n in SET_NAMES[1:]]
+    if all(cache.path(name, p).exists() for name, p in zip(SET_NAMES, payloads)):
+        return ""
+    known = {OvertakeParams(): ("about 15 s", "guardian rcis build"),   # the times of docs/performance.md, idle
+             OvertakeParams.among_traffic(): ("about 5 minutes", "guardian rcis build --ego-speed-min 0")}
+    took, ahead = known.get(params, ("minutes", "guardian rcis build with the same parameters (see --help)"))
+    return (f"guardian: building the overtake sets C_bnd, C_a and C_c for these parameters once ({took} on 2 idle "
+            f"cores, longer on a busy machine), then kept in {cache.dir}. To build them ahead: {ahead}")
+
+
 class OvertakeSupervision(_Supervision):
     """``guardian/HighwayOvertake-v0``: the overtake ego among traffic (``PointMassGuardian``)."""
 
@@ -103,6 +123,9 @@ class OvertakeSupervision(_Supervision):
         if library is None:
             from intention.library import build_library
 
+            notice = first_use_notice(base.params)
+            if notice:
+                print(notice, file=sys.stderr, flush=True)
             library = build_library(params=base.params)
         if library.params != base.params:
             raise ConfigError("Guardian: the library was computed for other OvertakeParams than the env's "

@@ -132,3 +132,19 @@ def test_the_action_reported_is_the_one_that_ran(env_id, action, config, name):
     from guardian.cli.rollout import action_name
 
     assert action_name(env_id, action, config) == name
+
+
+def test_a_library_built_on_first_use_is_announced_with_its_time_and_how_to_build_ahead(library, cache_dir,
+                                                                                         tmp_path, monkeypatch):
+    """The notice reads only file names: "" where the cache holds the sets, one line naming the time and the
+    command that builds them ahead where it does not."""
+    from guardian.adapters.highway_env.supervision import first_use_notice
+    from intention.params import OvertakeParams
+
+    monkeypatch.setenv("GUARDIAN_CACHE_DIR", str(cache_dir))
+    assert first_use_notice(OvertakeParams()) == ""          # the session's library is there
+    monkeypatch.setenv("GUARDIAN_CACHE_DIR", str(tmp_path))
+    notice = first_use_notice(OvertakeParams.among_traffic())
+    assert "about 5 minutes" in notice and notice.endswith("guardian rcis build --ego-speed-min 0")
+    assert str(tmp_path) in notice
+    assert first_use_notice(OvertakeParams()).endswith("To build them ahead: guardian rcis build")
