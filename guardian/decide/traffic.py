@@ -117,10 +117,32 @@ class TrafficSupervisor:
             memo = {}
             self._risk = (scene.others, memo)
         if id(car) not in memo:
-            memo[id(car)] = self._why_at_risk(scene, car)
+            self._resolve(scene, car, memo)
         return memo[id(car)]
 
-    def _why_at_risk(self, scene: Scene, car: Car) -> str:
+    def _resolve(self, scene: Scene, car: Car, memo: dict) -> None:
+        """``memo`` filled for ``car`` and the cars its verdict needed, in the order the rule asks for them
+        (``_verdict`` yields each car it follows whose verdict it needs). An explicit stack rather than recursion:
+        a queue of hundreds of cars in one lane is deeper than Python's recursion limit. The chain ends, since a
+        car follows only cars whose fronts are strictly ahead."""
+        stack, answer = [(car, self._verdict(scene, car))], None
+        while stack:
+            c, steps = stack[-1]
+            try:
+                needed = steps.send(answer)
+            except StopIteration as done:
+                memo[id(c)] = answer = done.value
+                stack.pop()
+                continue
+            if id(needed) in memo:
+                answer = memo[id(needed)]
+            else:
+                stack.append((needed, self._verdict(scene, needed)))
+                answer = None
+
+    def _verdict(self, scene: Scene, car: Car):
+        """Why ``car`` is at risk ("" when it is not), as a generator: it yields each car it follows whose own
+        verdict it needs and is sent that verdict back; its return value is the verdict."""
         if car.fixed:
             return ""
         p, name = self.others, car.name or "the car"
@@ -129,21 +151,14 @@ class TrafficSupervisor:
         if not 0 <= car.speed <= p.v_max:
             return f"{name} drives at {car.speed:.2f} m/s, outside the traffic model's [0, {p.v_max:g}] m/s"
         for lane in sorted(car.lanes):
-            why = self._why_not_following(scene, car, lane)
-            if why:
-                return why
-        return ""
-
-    def _why_not_following(self, scene: Scene, car: Car, lane: int) -> str:
-        p, name = self.others, car.name or "the car"
-        for lead in scene.leads_of(car, lane):
-            if self.at_risk(scene, lead):
-                h_next = _gap_after_step(p, car, lead) - self.wreck_margin
-                v_next = max(p.next_speed(car.speed, p.u_min), 0.0)
-                if not self.S_others.contains([[v_next, h_next, 0.0]])[0]:
-                    return f"{name} cannot stop behind {lead.name or 'the car'} in lane {lane}, which is at risk"
-            elif not self.S_others.contains([[car.speed, _gap(car, lead), max(min(lead.speed, p.v_max), 0.0)]])[0]:
-                return f"{name} is outside its car-following set behind {lead.name or 'the car'} in lane {lane}"
+            for lead in scene.leads_of(car, lane):
+                if (yield lead):
+                    h_next = _gap_after_step(p, car, lead) - self.wreck_margin
+                    v_next = max(p.next_speed(car.speed, p.u_min), 0.0)
+                    if not self.S_others.contains([[v_next, h_next, 0.0]])[0]:
+                        return f"{name} cannot stop behind {lead.name or 'the car'} in lane {lane}, which is at risk"
+                elif not self.S_others.contains([[car.speed, _gap(car, lead), max(min(lead.speed, p.v_max), 0.0)]])[0]:
+                    return f"{name} is outside its car-following set behind {lead.name or 'the car'} in lane {lane}"
         return ""
 
     def follower_speeds(self, scene: Scene, lane: int, ego_progress_min: float | None = None) -> tuple[list, str]:

@@ -90,3 +90,20 @@ def test_an_ordered_entry_weighs_a_standing_body_that_overlaps_the_announced_lea
         assert _entry_top(sup, [truck]) < _entry_top(sup, [leader])
     ordered = TrafficSupervisor(PARAMS, overapprox="ordered")
     assert _entry_top(ordered, [leader, beyond]) == _entry_top(ordered, [leader])   # hidden: wholly beyond it
+
+
+def test_a_queue_of_a_thousand_cars_is_judged_without_recursion_and_as_the_rule_says():
+    """A crashed car heads a queue of 1,000 cars in one lane, each 8 m (3 m bumper to bumper) behind the next at
+    10 m/s: none can stop behind the wreck ahead of it, so every one is at risk, the reason naming the car it
+    follows. The chain is deeper than Python's recursion limit; with a gap of 60 m the same queue is safe."""
+    def queue(spacing):
+        wreck = Car(10_000.0, 0.0, frozenset({1}), 5.0, "wreck", crashed=True)
+        cars = tuple(_car(10_000.0 - spacing * (k + 1), 10.0, 5.0, f"car {k}") for k in range(1000))
+        return Scene(_car(0.0, 10.0, 5.0, "ego", (2,)), (wreck,) + cars, 2), cars
+
+    scene, cars = queue(8.0)
+    sup = TrafficSupervisor(PARAMS)
+    assert sup.at_risk(scene, cars[-1]) == "car 999 cannot stop behind car 998 in lane 1, which is at risk"
+    assert all(sup.at_risk(scene, c) for c in cars)
+    scene, cars = queue(65.0)
+    assert sup.at_risk(scene, cars[-1]) == "" and sup.at_risk(scene, cars[0]) == ""
