@@ -8,9 +8,10 @@ car-following agent with that actuator, the cars moved exactly (``CarFollowingPa
 State ``(v, h, v_L, a, q_1, ..., q_n)``: ego speed, gap, lead speed, the ego's acceleration now and the
 ``n = delay`` accelerations already commanded (``q_1`` is reached at the end of this step). A command ``c`` is
 the acceleration the ego reaches ``n + 1`` steps on, within ``U`` and within ``jerk dt`` of the one before it.
-With a finite ``jerk`` the acceleration ramps linearly between the commanded values over each step (the
-vehicle of CommonRoad's ACC falsification suite: jerk held over a step); with ``jerk = inf`` it jumps to each
-commanded value at the step's start and holds it, so ``Actuator()`` is the exact model itself (tested).
+Over a step the acceleration either ramps linearly from the last commanded value to the new one
+(``profile="ramp"``: jerk held over a step) or jumps to the new one at the step's start and holds it
+(``profile="hold"``: a rate limit on the held acceleration, the vehicle of CommonRoad's ACC falsification suite);
+with ``jerk = inf`` both are the jump, so ``Actuator()`` is the exact model itself (tested).
 
 Why the set is ``{floor >= h_min}``, ``floor`` the least gap over all time when the ego goes through its queue
 and then brakes as hard as it can (each command ``jerk dt`` below the last down to ``u_min``, held to
@@ -42,22 +43,27 @@ from itha.car_following import INNER, CarFollowingParams
 
 BISECTIONS = 60
 INF = math.inf
+PROFILES = ("ramp", "hold")
 
 
 @dataclass(frozen=True)
 class Actuator:
-    """What the ego's actuator can do: ``|da/dt| <= jerk`` [m/s^3]; a command acts ``delay`` steps after it is
+    """What the ego's actuator can do: ``|da/dt| <= jerk`` [m/s^3] (``profile``: ramped over a step, or a held
+    acceleration whose step-to-step change is at most ``jerk dt``); a command acts ``delay`` steps after it is
     given; ``lag`` [s] a first-order time constant (not implemented: refused)."""
 
     jerk: float = INF
     delay: int = 0
     lag: float = 0.0
+    profile: str = "ramp"   # over a step: "ramp" from the last command to the new one, or "hold" the new one
 
     def __post_init__(self):
         if not self.jerk > 0:
             raise ValueError(f"Actuator.jerk must be positive (inf: none), got {self.jerk}")
         if not (isinstance(self.delay, int) and self.delay >= 0):
             raise ValueError(f"Actuator.delay is a whole number of steps >= 0, got {self.delay!r}")
+        if self.profile not in PROFILES:
+            raise ValueError(f"Actuator.profile must be one of {PROFILES}, got {self.profile!r}")
         if self.lag != 0.0:
             raise ValueError("Actuator.lag is not implemented: a first-order lag brakes exponentially and the set "
                              "has no exact least gap for it; declare the lag as a delay and a jerk bound instead")
@@ -188,8 +194,8 @@ class ActuatedSet:
 
     def _step(self, start: float, end: float) -> tuple:
         """One step's segment from acceleration ``start`` to the commanded ``end``."""
-        dt, jerk = self.params.dt, self.actuator.jerk
-        return (dt, 0.0, end) if math.isinf(jerk) else (dt, (end - start) / dt, None)
+        dt, act = self.params.dt, self.actuator
+        return (dt, 0.0, end) if math.isinf(act.jerk) or act.profile == "hold" else (dt, (end - start) / dt, None)
 
     def _braking(self, a: float) -> list:
         """From acceleration ``a``: the hardest command sequence (each ``jerk dt`` below the last, down to

@@ -95,6 +95,8 @@ def test_actuator_declarations_are_checked():
         Actuator(delay=0.2)
     with pytest.raises(ValueError, match="jerk"):
         Actuator(jerk=0.0)
+    with pytest.raises(ValueError, match="profile"):
+        Actuator(jerk=10.0, profile="smooth")
     with pytest.raises(ValueError, match="exact"):
         ActuatedSet(CarFollowingParams())
     with pytest.raises(ValueError, match="5 numbers"):
@@ -125,13 +127,14 @@ EQUAL, STRONGER_EGO = dict(u_min=-8.0, d_min=-8.0, u_max=3.0, d_max=3.0), dict(u
 
 @pytest.mark.parametrize("jerk,delay,bounds", [(10.0, 0, EQUAL), (5.0, 0, EQUAL), (10.0, 2, EQUAL), (math.inf, 1, EQUAL),
                                                (10.0, 0, STRONGER_EGO), (5.0, 1, STRONGER_EGO),
-                                               (math.inf, 0, STRONGER_EGO)])
+                                               (math.inf, 0, STRONGER_EGO), (10.0, 0, "hold"), (5.0, 2, "hold")])
 def test_actuated_set_is_invariant_under_any_lead_within_its_bounds(jerk, delay, bounds):
     """Falsifier: from states at the set's edge, any admissible command, a lead whose acceleration changes five
     times a step within its bounds: the gap on a fine grid never goes below ``h_min`` and every next state has an
     admissible command again, for 15 steps."""
-    p = CarFollowingParams(integration="exact", h_min=0.5, **bounds)
-    A, rng = ActuatedSet(p, Actuator(jerk=jerk, delay=delay)), np.random.default_rng(4)
+    profile = "hold" if bounds == "hold" else "ramp"   # "hold": the peer's vehicle, a rate-limited held acceleration
+    p = CarFollowingParams(integration="exact", h_min=0.5, **(EQUAL if bounds == "hold" else bounds))
+    A, rng = ActuatedSet(p, Actuator(jerk=jerk, delay=delay, profile=profile)), np.random.default_rng(4)
     tried = 0
     for _ in range(60):
         x = edge_state(A, rng)
