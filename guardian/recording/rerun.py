@@ -21,23 +21,27 @@ PROPOSED, APPLIED, ADMISSIBLE = (220, 50, 50), (30, 30, 30), (40, 160, 60)
 
 
 def rollout_blueprint(base, overtake: bool):
-    """A rollout recording's layout: the road, opening on ``ROLLOUT_VIEW`` m around the ego's start (the viewer
-    would otherwise fit the whole road, kilometres, and show no car); one plot per unit (acceleration, steering,
-    the lead's valid intentions on the overtake scenarios) and the events."""
+    """A rollout recording's layout: the road seen from ``road/follow`` (a frame that moves along with the ego, so
+    the view shows ``ROLLOUT_VIEW`` m around the ego at every step; the viewer would otherwise fit the whole road,
+    kilometres, and show no car); one plot per unit (acceleration, steering, the lead's valid intentions on the
+    overtake scenarios) and the events."""
     import rerun.blueprint as rrb
 
-    x0 = float(base.vehicle.position[0]) - ROLLOUT_VIEW / 4
     ys = [float(lane.start[1]) + side * lane.width for _from in base.road.network.graph.values()
           for group in _from.values() for lane in group for side in (-0.5, 0.5)]
-    bounds = rrb.VisualBounds2D(x_range=[x0, x0 + ROLLOUT_VIEW], y_range=[min(ys) - 2.0, max(ys) + 2.0])
-    plots = [rrb.TimeSeriesView(origin="/", contents=["/inputs/*/throttle", "/admissible/acceleration/**"],
+    bounds = rrb.VisualBounds2D(x_range=[-ROLLOUT_VIEW / 4, 3 * ROLLOUT_VIEW / 4],
+                                y_range=[min(ys) - 2.0, max(ys) + 2.0])
+    plots = [rrb.TimeSeriesView(origin="/", contents=[f"/inputs/{k}/throttle" for k in ("proposed", "applied")]
+                                + ["/admissible/acceleration/**"],
                                 name="acceleration [m/s²]: proposed (red), applied (black), admissible (green)"),
-             rrb.TimeSeriesView(origin="/", contents=["/inputs/*/steering", "/admissible/steering/**"],
+             rrb.TimeSeriesView(origin="/", contents=[f"/inputs/{k}/steering" for k in ("proposed", "applied")]
+                                + ["/admissible/steering/**"],
                                 name="steering: proposed (red), applied (black), admissible (green)")]
     if overtake:
         plots.append(rrb.TimeSeriesView(origin="/intention", name="the lead's valid intentions"))
     return rrb.Blueprint(rrb.Horizontal(
-        rrb.Spatial2DView(origin="/road", name="road (ego green, lead amber, traffic blue)", visual_bounds=bounds),
+        rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"], name="road (ego green, lead amber, traffic "
+                          "blue), following the ego", visual_bounds=bounds),
         rrb.Vertical(*plots, rrb.TextLogView(origin="/events", name="overrides and events"),
                      row_shares=[2] * len(plots) + [1]),
         column_shares=[3, 2]), collapse_panels=True)
@@ -328,7 +332,7 @@ class GuardianRecorder(_Closing):
 
     * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
       ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in
-      highway-env's renderer)
+      highway-env's renderer); ``road/follow`` a frame at the ego's x that the road view is seen from
     * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
       the decoded inputs of the last simulation step)
     * ``admissible/acceleration/{low,high}`` the composed admissible acceleration at the applied
@@ -377,6 +381,7 @@ class GuardianRecorder(_Closing):
                               half_sizes=[[v.LENGTH / 2, v.WIDTH / 2] for v in vs],
                               colors=[colour] * len(vs), labels=labels)
 
+        rec.log("road/follow", rr.Transform3D(translation=[float(ego.position[0]), 0.0, 0.0]))
         rec.log("road/ego", boxes([ego], (40, 180, 60), ["ego"]))
         if lead is not None:
             rec.log("road/lead", boxes([lead], (230, 150, 30), ["lead"]))

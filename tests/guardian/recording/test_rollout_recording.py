@@ -12,22 +12,31 @@ def test_a_recording_into_a_folder_not_yet_made_makes_it(tmp_path):
     assert path.is_file()
 
 
-def test_a_rollout_recording_opens_on_the_ego_not_on_kilometres_of_road():
-    """The viewer fits all it is given: HighwayOvertake's lanes run 20 km and no car was visible on opening. The
-    layout now opens on 300 m around the ego's start, and each unit has its own plot."""
-    from guardian.recording.rerun import ROLLOUT_VIEW, rollout_blueprint
+def test_a_rollout_recording_follows_the_ego_not_kilometres_of_road(tmp_path):
+    """The viewer fits all it is given: HighwayOvertake's lanes run 20 km and no car was visible on opening; a view
+    fixed on the ego's start lost the ego by the time the viewer opened (at the file's last step). The road is seen
+    from ``road/follow``, a frame at the ego's x every step, over ``ROLLOUT_VIEW`` m around it; each unit has its
+    own plot, and the inputs' series are named one by one (rerun's filters take no ``*`` inside a path: the
+    proposed and applied inputs were in no plot)."""
+    from guardian.cli import main
+    from guardian.recording.rerun import ROLLOUT_VIEW, read_entities, rollout_blueprint
 
     env = gym.make("highway-fast-v0")
     env.reset(seed=0)
     base = env.unwrapped
     road_view, side = rollout_blueprint(base, overtake=False).root_container.contents
+    assert str(road_view.origin) == "/road/follow"
     (bounds,) = road_view.properties["VisualBounds2D"].range.as_arrow_array().to_pylist()
     x0, x1 = bounds["x_range"]
-    assert x0 < float(base.vehicle.position[0]) < x1 and x1 - x0 == ROLLOUT_VIEW
-    lanes_end = max(float(lane.end[0]) for f in base.road.network.graph.values() for g in f.values() for lane in g)
-    assert lanes_end - x0 > 3 * ROLLOUT_VIEW     # without the bounds the view would fit all of this
-    plots = [v.name for v in side.contents]
-    assert any("acceleration" in str(n) for n in plots) and any("steering" in str(n) for n in plots)
+    assert x0 < 0 < x1 and x1 - x0 == ROLLOUT_VIEW
+    plots = {str(v.name): [str(c) for c in v.contents] for v in side.contents}
+    throttle = next(c for n, c in plots.items() if "acceleration" in n)
+    assert {"/inputs/proposed/throttle", "/inputs/applied/throttle"} <= set(throttle)
+    assert not any("*" in c.rstrip("*") for cs in plots.values() for c in cs)
+    rrd = tmp_path / "run.rrd"
+    assert main(["rollout", "--env", "highway-fast-v0", "--episodes", "1", "--rerun", str(rrd)]) == 0
+    entities = read_entities(rrd)
+    assert entities["/road/follow"] == entities["/road/ego"] > 1
 
 
 def test_the_override_events_are_the_counted_overrides_and_read_as_a_person_reads_them(tmp_path, capsys):
