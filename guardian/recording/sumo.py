@@ -7,8 +7,9 @@
 * ``events/override``: one line per safety override (time, vehicle, what changed, proposed -> applied, the reasons);
   ``events/crash``: each collision with its rule and fault; ``events/episode``.
 
-Time is ``time`` (simulated seconds since the recording began; episodes follow each other). The view opens on the
-first guarded vehicle's start (200 m of road), not on the whole road, where 5 m cars would be specks.
+Time is ``time`` (simulated seconds since the recording began; episodes follow each other). The road is seen from
+``road/follow``, a frame at the first guarded vehicle's x at every step: the view shows 200 m around it whatever
+step the viewer is on (it opens on the last), not the whole road, where 5 m cars would be specks.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ class SumoRecorder:
         self.rec = rr.RecordingStream(application_id)
         self.path, self._saved, self.t0, self.t = Path(path), False, 0.0, 0.0
         self._marks: dict = {}
+        self._followed = None   # the guarded vehicle the road view follows
 
     def __enter__(self):
         return self
@@ -58,11 +60,12 @@ class SumoRecorder:
     def _blueprint(self, first, frame):
         import rerun.blueprint as rrb
 
-        x0 = float(first.x) - VIEW / 4
-        bounds = rrb.VisualBounds2D(x_range=[x0, x0 + VIEW], y_range=[-frame.lane_width, frame.n_lanes * frame.lane_width])
-        name = first.name
+        bounds = rrb.VisualBounds2D(x_range=[-VIEW / 4, 3 * VIEW / 4],
+                                    y_range=[-frame.lane_width, frame.n_lanes * frame.lane_width])
+        name = self._followed = first.name
         return rrb.Blueprint(rrb.Horizontal(
-            rrb.Spatial2DView(origin="/road", name="road (y to the right of travel)", visual_bounds=bounds),
+            rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"],
+                              name=f"road (y to the right of travel), following {name}", visual_bounds=bounds),
             rrb.Vertical(rrb.TimeSeriesView(origin=f"/inputs/{name}/acceleration", name=f"{name}: acceleration [m/s²]"),
                          rrb.TimeSeriesView(origin=f"/inputs/{name}/steering", name=f"{name}: steering [rad]"),
                          rrb.TextLogView(origin="/events", name="overrides, crashes, episodes"),
@@ -95,6 +98,9 @@ class SumoRecorder:
             outlines = [np.vstack([c, c[:1]]).tolist() for c in (corners(b) for b in bs)]
             return rr.LineStrips2D(outlines, colors=colours, labels=labels, radii=0.15)
 
+        for b in guarded:
+            if b.name == self._followed:
+                self.rec.log("road/follow", rr.Transform3D(translation=[float(b.x), 0.0, 0.0]))
         self.rec.log("road/guarded", boxes(guarded, [self._marks.get(b.name, GREEN) for b in guarded],
                                            [b.name for b in guarded]))
         self.rec.log("road/traffic", boxes(traffic, [BLUE] * len(traffic)))
