@@ -206,13 +206,22 @@ HIGHD_SHOWN = 4   # vehicles whose series a HighD recording opens on (every vehi
 
 
 def highd_blueprint(shown=()):
-    """The layout a HighD recording opens with: the road on the left; right, one plot per vehicle of ``shown`` (its
-    input against its admissible input; its speed and gap: the vehicles the events name first) and the events. A
-    plot of every vehicle (931 series on a sample) reads as nothing; the others stay in the file, a click away."""
+    """The layout a HighD recording opens with: the road on the left; right, for each vehicle of ``shown`` (the
+    vehicles the events name first) tabs of one plot per unit, opening on its input against its admissible input
+    (then its speed, its gap), and the events. A plot of every vehicle (931 series on a sample) reads as nothing, and
+    gaps of 100 m on the inputs' axis squash them; the others stay in the file, a click away."""
     import rerun.blueprint as rrb
 
-    plots = [rrb.TimeSeriesView(origin=f"/vehicles/{v}", name=f"vehicle {v}: input, admissible input, speed, gap")
-             for v in list(shown)[:HIGHD_SHOWN]]
+    def tabs(v):
+        return rrb.Tabs(
+            rrb.TimeSeriesView(origin=f"/vehicles/{v}", name=f"vehicle {v}: input, admissible input [m/s²]",
+                               contents=[f"/vehicles/{v}/input", f"/vehicles/{v}/admissible/**"]),
+            rrb.TimeSeriesView(origin=f"/vehicles/{v}", name=f"vehicle {v}: speed [m/s]",
+                               contents=[f"/vehicles/{v}/speed"]),
+            rrb.TimeSeriesView(origin=f"/vehicles/{v}", name=f"vehicle {v}: gap [m]", contents=[f"/vehicles/{v}/gap"]),
+            active_tab=0)
+
+    plots = [tabs(v) for v in list(shown)[:HIGHD_SHOWN]]
     return rrb.Blueprint(rrb.Horizontal(
         rrb.Spatial2DView(origin="/road", name="road (image coordinates, red = not self-safe, amber = lane change not "
                                                "responsible)"),

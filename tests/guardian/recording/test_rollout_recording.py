@@ -67,5 +67,7 @@ def test_a_highd_recording_opens_on_the_vehicles_the_events_name_not_on_every_ve
     from guardian.recording.rerun import HIGHD_SHOWN, highd_blueprint
 
     _, side = highd_blueprint([5, 7, 9, 11, 13, 15]).root_container.contents
-    plots = [v for v in side.contents if type(v).__name__ == "TimeSeriesView"]
-    assert [str(v.origin) for v in plots] == [f"/vehicles/{v}" for v in (5, 7, 9, 11)][:HIGHD_SHOWN]
+    tabs = [c for c in side.contents if type(c).__name__ == "Tabs"]
+    assert [str(t.contents[0].origin) for t in tabs] == [f"/vehicles/{v}" for v in (5, 7, 9, 11)][:HIGHD_SHOWN]
+    first = [[str(c) for c in view.contents] for view in tabs[0].contents]   # one plot per unit, the input first
+    assert first == [["/vehicles/5/input", "/vehicles/5/admissible/**"], ["/vehicles/5/speed"], ["/vehicles/5/gap"]]
