@@ -324,7 +324,16 @@ class RoadMapEgo(BicycleEgo):
 
     def _path(self, x, y, h, v, steering, speed_step) -> list:
         """``[(x, y, heading, speed), ...]`` after one step with ``steering``, then the recovery steering until
-        the heading is (nearly) the lane's."""
+        the heading is (nearly) the lane's (remembered: a decision asks for each path more than once)."""
+        key = (x, y, h, v, steering, speed_step)
+        memo = self.__dict__.setdefault("_paths", {})
+        if key not in memo:
+            if len(memo) > 1_000:
+                memo.clear()
+            memo[key] = self._one_path(x, y, h, v, steering, speed_step)
+        return list(memo[key])
+
+    def _one_path(self, x, y, h, v, steering, speed_step) -> list:
         states = [(*self._step(x, y, h, v, steering), max(v + speed_step, 0.0))]
         for _ in range(self.RECOVERY_STEPS):
             x1, y1, h1, v1 = states[-1]

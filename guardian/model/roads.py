@@ -40,6 +40,8 @@ from guardian.model.body import half_extents, lanes_overlapped
 from guardian.model.lanes import LaneNumbering
 from guardian.model.scene import Car
 
+SCALAR = (int, float)
+
 
 @dataclass(frozen=True)
 class Road:
@@ -93,13 +95,20 @@ class Strip:
     open_after: bool = False
 
     def _chord(self):
-        (x0, y0), (x1, y1) = self.start, self.end
-        n = math.hypot(x1 - x0, y1 - y0)
-        return x0, y0, (x1 - x0) / n, (y1 - y0) / n
+        chord = self.__dict__.get("_chord_memo")
+        if chord is None:
+            (x0, y0), (x1, y1) = self.start, self.end
+            n = math.hypot(x1 - x0, y1 - y0)
+            chord = (x0, y0, (x1 - x0) / n, (y1 - y0) / n)
+            object.__setattr__(self, "_chord_memo", chord)
+        return chord
 
     def local(self, x, y):
         """``(s, r)``: longitudinal and lateral coordinates of points (arrays) in the strip's own frame, as
         highway-env's ``local_coordinates`` computes them (for a lane along ``+x``, ``r`` grows with y)."""
+        if self.kind == "straight" and type(x) is float and type(y) is float:  # the same arithmetic, in floats
+            x0, y0, ux, uy = self._chord()
+            return (x - x0) * ux + (y - y0) * uy, -(x - x0) * uy + (y - y0) * ux
         x, y = np.asarray(x, float), np.asarray(y, float)
         if self.kind == "arc":
             cx, cy = self.start
@@ -117,6 +126,9 @@ class Strip:
 
     def heading_at(self, s):
         """The lane's heading at longitudinal coordinate ``s`` (array)."""
+        if self.kind == "straight" and type(s) is float:
+            x0, y0, ux, uy = self._chord()
+            return math.atan2(uy, ux)
         s = np.asarray(s, float)
         if self.kind == "arc":
             return self.direction * s / self.radius + self.start_phase + self.direction * np.pi / 2
@@ -174,7 +186,11 @@ class RoadMap:
     @property
     def numbering(self) -> LaneNumbering:
         """Slots (0 = leftmost) and ITHA lanes (1 = rightmost)."""
-        return LaneNumbering(self.n_lanes)
+        numbering = self.__dict__.get("_numbering")
+        if numbering is None:
+            numbering = LaneNumbering(self.n_lanes)
+            object.__setattr__(self, "_numbering", numbering)
+        return numbering
 
     def slot_y(self, slot: int) -> float:
         return self.y0 + slot * self.lane_width
@@ -205,7 +221,12 @@ class RoadMap:
 
     def slot_at(self, slot: int, x: float) -> bool:
         """Is slot ``slot`` a corridor lane at ``x``?"""
-        return 0 <= slot < self.n_lanes and any(lo <= x <= hi for lo, hi in self.spans[slot])
+        if not 0 <= slot < self.n_lanes:
+            return False
+        for lo, hi in self.spans[slot]:
+            if lo <= x <= hi:
+                return True
+        return False
 
     def beside(self, slots, x: float) -> frozenset:
         """The corridor lanes next to ``slots`` present at ``x``."""
@@ -274,7 +295,8 @@ class RoadMap:
 
         Each body is answered from a memo of the bodies asked before (every guarded car's scene reads every
         car's body once per simulation step)."""
-        if all(isinstance(v, (int, float)) for v in (x, y, heading, dx, dy)):
+        if isinstance(x, SCALAR) and isinstance(y, SCALAR) and isinstance(heading, SCALAR) and isinstance(dx, SCALAR) \
+                and isinstance(dy, SCALAR):
             return self._body(float(x), float(y), float(heading), length, width, margin, float(dx), float(dy))
         x, y, h = (np.atleast_1d(np.asarray(v, float)) for v in (x, y, heading))
         dx, dy = np.broadcast_to(np.asarray(dx, float), x.shape), np.broadcast_to(np.asarray(dy, float), x.shape)
@@ -284,8 +306,12 @@ class RoadMap:
         return frozenset(out)
 
     def _body(self, x, y, h, length, width, margin, dx, dy) -> frozenset:
-        return self.memo(("body", x, y, h, length, width, margin, dx, dy),
-                         lambda: self._one_body_slots(x, y, h, length, width, margin, dx, dy))
+        key = ("body", x, y, h, length, width, margin, dx, dy)
+        memo = self.__dict__.get("_memo")
+        out = None if memo is None else memo.get(key)
+        if out is None:
+            out = self.memo(key, lambda: self._one_body_slots(x, y, h, length, width, margin, dx, dy))
+        return out
 
     def memo(self, key: tuple, compute):
         """``compute()``, remembered under ``key`` for as long as this map (a function of the road and of
@@ -303,19 +329,27 @@ class RoadMap:
         """The slots one body overlaps (``body_slots``), in floats."""
         rx, ry = half_extents(length, width, h)
         rx, ry = rx + margin, ry + margin
-        ylo, yhi = y - ry + min(dy, 0.0), y + ry + max(dy, 0.0)
-        xlo, xhi = x - rx + min(dx, 0.0), x + rx + max(dx, 0.0)
-        half = self.lane_width / 2
+        ylo, yhi = y - ry + (0.0 if 0.0 < dy else dy), y + ry + (0.0 if 0.0 > dy else dy)   # min, max with 0
+        xlo, xhi = x - rx + (0.0 if 0.0 < dx else dx), x + rx + (0.0 if 0.0 > dx else dx)
+        half, y0, w = self.lane_width / 2, self.y0, self.lane_width
         out = set()
         for k, spans in enumerate(self.spans):
-            yk = self.slot_y(k)
-            if ylo < yk + half and yhi > yk - half and any(xlo < hi and xhi > lo for lo, hi in spans):
-                out.add(k)
-        sweep = float(np.hypot(dx, dy))
+            yk = y0 + k * w
+            if ylo < yk + half and yhi > yk - half:
+                for lo, hi in spans:
+                    if xlo < hi and xhi > lo:
+                        out.add(k)
+                        break
+        sweep = None
         for strip in self.branches:
             if strip.slot in out:
                 continue
-            sl, r = (float(v) for v in strip.local(x, y))
+            if sweep is None:
+                sweep = 0.0 if dx == 0.0 and dy == 0.0 else float(np.hypot(dx, dy))
+            sl, r = strip.local(x, y)
+            sl, r = float(sl), float(r)
+            if abs(r) > strip.width / 2 + length / 2 + width / 2 + margin + sweep + 1e-6:
+                continue   # beyond any reach across the strip, whatever its heading (saves the turning below)
             rs, rr = half_extents(length, width, h - float(strip.heading_at(sl)))
             rs, rr = rs + margin + sweep, rr + margin + sweep
             lo, hi = strip.s_limits()

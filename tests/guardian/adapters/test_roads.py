@@ -177,3 +177,44 @@ def test_one_body_is_read_as_the_array_path_reads_it(env_id):
         one = road.body_slots(x, y, h, 5.0, 2.0, margin, dx, dy)
         assert one == road.body_slots(np.array([x]), np.array([y]), np.array([h]), 5.0, 2.0, margin, dx, dy)
         assert one == road.body_slots(x, y, h, 5.0, 2.0, margin, dx, dy)  # the memo's answer
+
+
+def test_a_straight_strip_answers_floats_as_it_answers_arrays():
+    """Scalars take a float path in ``Strip.local`` and ``heading_at`` (the same arithmetic): bit for bit."""
+    from guardian.model.roads import Strip
+
+    strip = Strip("straight", (-300.0, 14.0), (0.0, 8.0), 3.2, math.dist((-300.0, 14.0), (0.0, 8.0)), 3, -300.0,
+                  open_before=True)
+    rng = np.random.default_rng(1)
+    for x, y in rng.uniform([-400, -5], [100, 30], (500, 2)):
+        fast = strip.local(float(x), float(y))
+        slow = strip.local(np.float64(x), np.float64(y))
+        assert all(type(v) is float for v in fast) and fast == tuple(float(v) for v in slow)
+        assert strip.heading_at(float(x)) == float(strip.heading_at(np.float64(x)))
+
+
+def test_a_branch_is_skipped_only_for_bodies_clear_of_it():
+    """A body whose centre lies beyond any reach across a branch skips that branch's turning: the turned,
+    widened and swept body would not have reached the branch's strip either, and its slots are what they were."""
+    from guardian.model.body import half_extents
+    from guardian.model.roads import Strip, road_as_dict, road_from_dict
+
+    ramp = Strip("straight", (-300.0, 14.0), (0.0, 8.0), 3.2, math.dist((-300.0, 14.0), (0.0, 8.0)), 2, -300.0,
+                 open_before=True)
+    road = road_from_dict({**road_as_dict(RoadMap(3.2, 3, 0.0, (((-np.inf, np.inf),),) * 2 + (((0.0, 500.0),),),
+                                                  (), (), ())), "branches": [vars(ramp)]})
+    strip, rng, skipped = road.branches[0], np.random.default_rng(2), 0
+    for _ in range(3000):
+        x, y, h = float(rng.uniform(-320, 20)), float(rng.uniform(0, 20)), float(rng.normal(0, 0.4))
+        margin, dx, dy = float(rng.choice([0.0, 0.3])), float(rng.uniform(0, 3)), float(rng.uniform(-1, 1))
+        sweep = float(np.hypot(dx, dy))
+        _, r = strip.local(x, y)
+        if abs(r) <= 3.2 / 2 + 5.0 / 2 + 2.0 / 2 + margin + sweep + 1e-6:
+            continue
+        skipped += 1
+        rr = half_extents(5.0, 2.0, h - strip.heading_at(float(strip.local(x, y)[0])))[1] + margin + sweep
+        assert not (r - rr < 3.2 / 2 and r + rr > -3.2 / 2)
+        corridor = RoadMap(3.2, 3, 0.0, road.spans, (), (), ())
+        assert road.body_slots(x, y, h, 5.0, 2.0, margin, dx, dy) == corridor.body_slots(x, y, h, 5.0, 2.0, margin,
+                                                                                          dx, dy)
+    assert skipped > 500
