@@ -184,8 +184,8 @@ def _inapplicable(args, overtake: bool) -> str | None:
         return "--policy replaces --agent; give one of them"
     if args.algo is not None and args.policy is None:
         return "--algo names the algorithm of a --policy file"
-    if args.controlled is not None and (args.policy is not None or args.rerun is not None):
-        return "--policy and --rerun drive and record one car; they do not apply with --controlled"
+    if args.controlled is not None and args.policy is not None:
+        return "--policy drives one car; it does not apply with --controlled"
     if args.overapprox != "trivial" and (args.no_guardian or overtake):
         return "--overapprox chooses how guarded cars on highway-env's roads over-approximate each other's lane changes"
     return None

@@ -20,28 +20,49 @@ ROLLOUT_VIEW = 300.0   # [m] of road in view when a rollout recording opens (a r
 PROPOSED, APPLIED, ADMISSIBLE = (220, 50, 50), (30, 30, 30), (40, 160, 60)
 
 
-def rollout_blueprint(base, overtake: bool):
+FLEET_SHOWN = 4   # guarded cars whose plots a recording of several opens on (every car's are in the file)
+
+
+def car_root(car: int | None) -> str:
+    """Where a guarded car's series live: ``/`` with one guarded car, ``/cars/car_K/`` with several."""
+    return "/" if car is None else f"/cars/car_{car}/"
+
+
+def _input_plots(car: int | None) -> list:
+    """One plot per unit of a guarded car's inputs: proposed, applied and admissible."""
+    import rerun.blueprint as rrb
+
+    root, who = car_root(car), "" if car is None else f"car {car}: "
+    return [rrb.TimeSeriesView(origin="/", contents=[f"{root}inputs/{k}/throttle" for k in ("proposed", "applied")]
+                               + [f"{root}admissible/acceleration/**"],
+                               name=f"{who}acceleration [m/s²]: proposed (red), applied (black), admissible (green)"),
+            rrb.TimeSeriesView(origin="/", contents=[f"{root}inputs/{k}/steering" for k in ("proposed", "applied")]
+                               + [f"{root}admissible/steering/**"],
+                               name=f"{who}steering: proposed (red), applied (black), admissible (green)")]
+
+
+def rollout_blueprint(base, overtake: bool, cars: int = 1):
     """A rollout recording's layout: the road seen from ``road/follow`` (a frame that moves along with the ego, so
     the view shows ``ROLLOUT_VIEW`` m around the ego at every step; the viewer would otherwise fit the whole road,
     kilometres, and show no car); one plot per unit (acceleration, steering, the lead's valid intentions on the
-    overtake scenarios) and the events."""
+    overtake scenarios) and the events. With several guarded ``cars`` the view follows car 0, and each of the first
+    ``FLEET_SHOWN`` cars has its plots as tabs."""
     import rerun.blueprint as rrb
 
     ys = [float(lane.start[1]) + side * lane.width for _from in base.road.network.graph.values()
           for group in _from.values() for lane in group for side in (-0.5, 0.5)]
     bounds = rrb.VisualBounds2D(x_range=[-ROLLOUT_VIEW / 4, 3 * ROLLOUT_VIEW / 4],
                                 y_range=[min(ys) - 2.0, max(ys) + 2.0])
-    plots = [rrb.TimeSeriesView(origin="/", contents=[f"/inputs/{k}/throttle" for k in ("proposed", "applied")]
-                                + ["/admissible/acceleration/**"],
-                                name="acceleration [m/s²]: proposed (red), applied (black), admissible (green)"),
-             rrb.TimeSeriesView(origin="/", contents=[f"/inputs/{k}/steering" for k in ("proposed", "applied")]
-                                + ["/admissible/steering/**"],
-                                name="steering: proposed (red), applied (black), admissible (green)")]
+    if cars == 1:
+        plots = _input_plots(None)
+    else:
+        plots = [rrb.Tabs(*_input_plots(k), active_tab=0) for k in range(min(cars, FLEET_SHOWN))]
     if overtake:
         plots.append(rrb.TimeSeriesView(origin="/intention", name="the lead's valid intentions"))
+    name = "road (ego green, lead amber, traffic blue), following the ego" if cars == 1 else \
+        "road (guarded cars green, traffic blue), following car 0"
     return rrb.Blueprint(rrb.Horizontal(
-        rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"], name="road (ego green, lead amber, traffic "
-                          "blue), following the ego", visual_bounds=bounds),
+        rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"], name=name, visual_bounds=bounds),
         rrb.Vertical(*plots, rrb.TextLogView(origin="/events", name="overrides and events"),
                      row_shares=[2] * len(plots) + [1]),
         column_shares=[3, 2]), collapse_panels=True)
@@ -70,15 +91,16 @@ def _shown(value) -> str:
     return str(value)
 
 
-def _series_styles(rec) -> None:
-    """Each series its colour and name, the same in both plots."""
+def _series_styles(rec, car: int | None = None) -> None:
+    """Each series its colour and name, the same in both plots (of guarded car ``car`` when there are several)."""
+    root = car_root(car)[1:]
     for axis in ("throttle", "steering"):
-        rec.log(f"inputs/proposed/{axis}", rr.SeriesLines(colors=[PROPOSED], names=["proposed"]), static=True)
-        rec.log(f"inputs/applied/{axis}", rr.SeriesLines(colors=[APPLIED], names=["applied"]), static=True)
+        rec.log(f"{root}inputs/proposed/{axis}", rr.SeriesLines(colors=[PROPOSED], names=["proposed"]), static=True)
+        rec.log(f"{root}inputs/applied/{axis}", rr.SeriesLines(colors=[APPLIED], names=["applied"]), static=True)
     for axis in ("acceleration", "steering"):
         for side in ("low", "high"):
-            rec.log(f"admissible/{axis}/{side}", rr.SeriesLines(colors=[ADMISSIBLE], names=[f"admissible {side}"]),
-                    static=True)
+            rec.log(f"{root}admissible/{axis}/{side}",
+                    rr.SeriesLines(colors=[ADMISSIBLE], names=[f"admissible {side}"]), static=True)
 
 
 def run_blueprint(series: tuple[str, ...], road_name: str = "road"):
@@ -341,7 +363,9 @@ class GuardianRecorder(_Closing):
 
     * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
       ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in
-      highway-env's renderer); ``road/follow`` a frame at the ego's x that the road view is seen from
+      highway-env's renderer); ``road/follow`` a frame at the ego's x that the road view is seen from. With several
+      guarded cars (``--controlled N``): ``road/guarded`` the cars labelled ``car K``, the view follows car 0, and
+      each car's series below are under ``cars/car_K/`` (its events name it)
     * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
       the decoded inputs of the last simulation step)
     * ``admissible/acceleration/{low,high}`` the composed admissible acceleration at the applied
@@ -364,8 +388,10 @@ class GuardianRecorder(_Closing):
     def start_episode(self, env, episode: int) -> None:
         base = env.unwrapped
         if not self._lanes_logged:   # the file begins with the first episode, its view on the ego's start
-            save_to(self.rec, self.path, rollout_blueprint(base, getattr(base, "lead", None) is not None))
-            _series_styles(self.rec)
+            cars = len(getattr(base, "controlled_vehicles", ()) or ()) or 1
+            save_to(self.rec, self.path, rollout_blueprint(base, getattr(base, "lead", None) is not None, cars))
+            for car in ([None] if cars == 1 else range(cars)):
+                _series_styles(self.rec, car)
             strips = []
             for _from in base.road.network.graph.values():
                 for group in _from.values():
@@ -383,31 +409,29 @@ class GuardianRecorder(_Closing):
         base = env.unwrapped
         rec = self.rec
         rec.set_time("step", sequence=self.step_index)
+        g = record or {}
+        fleet = "agents" in g
         ego, lead = base.vehicle, getattr(base, "lead", None)
+        guarded = list(base.controlled_vehicles) if fleet else [ego]
 
         def boxes(vs, colour, labels=None):
             return rr.Boxes2D(centers=[[float(v.position[0]), float(v.position[1])] for v in vs],
                               half_sizes=[[v.LENGTH / 2, v.WIDTH / 2] for v in vs],
                               colors=[colour] * len(vs), labels=labels)
 
-        rec.log("road/follow", rr.Transform3D(translation=[float(ego.position[0]), 0.0, 0.0]))
-        rec.log("road/ego", boxes([ego], (40, 180, 60), ["ego"]))
+        rec.log("road/follow", rr.Transform3D(translation=[float(guarded[0].position[0]), 0.0, 0.0]))
+        if fleet:
+            rec.log("road/guarded", boxes(guarded, (40, 180, 60), [f"car {k}" for k in range(len(guarded))]))
+        else:
+            rec.log("road/ego", boxes([ego], (40, 180, 60), ["ego"]))
         if lead is not None:
             rec.log("road/lead", boxes([lead], (230, 150, 30), ["lead"]))
-        traffic = [v for v in base.road.vehicles if v is not ego and v is not lead]
+        traffic = [v for v in base.road.vehicles if not any(v is c for c in guarded) and v is not lead]
         rec.log("road/traffic", boxes(traffic, (60, 120, 220)))
-        g = record or {}
-        for kind in ("proposed", "applied"):
-            u = g.get(f"{kind}_input") or (g.get(kind) if isinstance(g.get(kind), list) else None)
-            if u:
-                rec.log(f"inputs/{kind}/throttle", rr.Scalars([float(u[0])]))
-                rec.log(f"inputs/{kind}/steering", rr.Scalars([float(u[1])]))
-        for axis, key in (("acceleration", "admissible_acceleration"), ("steering", "admissible_lateral")):
-            band = g.get(key) or []
-            if band:
-                rec.log(f"admissible/{axis}/low", rr.Scalars([min(r[0] for r in band)]))
-                rec.log(f"admissible/{axis}/high", rr.Scalars([max(r[1] for r in band)]))
-        if g:
+        for car, r in (enumerate(g["agents"]) if fleet else [(None, g)]):
+            self._inputs(car, r)
+            self._override(car, r, episode, t)
+        if g and not fleet:
             rec.log("guardian/active_set", rr.TextLog(str(g.get("active_set"))))
             valid = tuple(g.get("valid_intentions", []))
             if lead is not None:
@@ -416,14 +440,33 @@ class GuardianRecorder(_Closing):
                     rec.log("intention/log", rr.TextLog(f"valid intentions: {', '.join(valid) or 'none'}; "
                                                         f"active set {g.get('active_set')}"))
                     self._valid = valid
-            if g.get("overridden"):   # a safety override (the tally's override_steps) or a clip to the model
-                safety = bool(g.get("safety_override", True))
-                reasons = _reasons(g.get("reasons", []))
-                rec.log("events/override" if safety else "events/model_clip", rr.TextLog(
-                    f"step {self.step_index} (episode {episode}, its step {t}; {g.get('changed')}): "
-                    f"{_shown(g.get('proposed'))} -> {_shown(g.get('applied'))}" + (f"; {reasons}" if reasons else ""),
-                    level="WARN" if safety else "INFO"))
         self.step_index += 1
+
+    def _inputs(self, car: int | None, g: dict) -> None:
+        """One guarded car's proposed and applied inputs and its admissible bands."""
+        root = car_root(car)[1:]
+        for kind in ("proposed", "applied"):
+            u = g.get(f"{kind}_input") or (g.get(kind) if isinstance(g.get(kind), list) else None)
+            if u:
+                self.rec.log(f"{root}inputs/{kind}/throttle", rr.Scalars([float(u[0])]))
+                self.rec.log(f"{root}inputs/{kind}/steering", rr.Scalars([float(u[1])]))
+        for axis, key in (("acceleration", "admissible_acceleration"), ("steering", "admissible_lateral")):
+            band = g.get(key) or []
+            if band:
+                self.rec.log(f"{root}admissible/{axis}/low", rr.Scalars([min(r[0] for r in band)]))
+                self.rec.log(f"{root}admissible/{axis}/high", rr.Scalars([max(r[1] for r in band)]))
+
+    def _override(self, car: int | None, g: dict, episode: int, t: int) -> None:
+        """An event for a step the guardian changed (a safety override, or only a clip to the model's bounds)."""
+        if not g.get("overridden"):
+            return
+        safety = bool(g.get("safety_override", True))
+        reasons = _reasons(g.get("reasons", []))
+        who = "" if car is None else f"car {car}, "
+        self.rec.log("events/override" if safety else "events/model_clip", rr.TextLog(
+            f"step {self.step_index} ({who}episode {episode}, its step {t}; {g.get('changed')}): "
+            f"{_shown(g.get('proposed'))} -> {_shown(g.get('applied'))}" + (f"; {reasons}" if reasons else ""),
+            level="WARN" if safety else "INFO"))
 
     def close(self) -> None:
         if not self._lanes_logged:   # no episode began: the file still exists, with the plain layout

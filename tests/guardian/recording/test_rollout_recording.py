@@ -71,3 +71,33 @@ def test_a_highd_recording_opens_on_the_vehicles_the_events_name_not_on_every_ve
     assert [str(t.contents[0].origin) for t in tabs] == [f"/vehicles/{v}" for v in (5, 7, 9, 11)][:HIGHD_SHOWN]
     first = [[str(c) for c in view.contents] for view in tabs[0].contents]   # one plot per unit, the input first
     assert first == [["/vehicles/5/input", "/vehicles/5/admissible/**"], ["/vehicles/5/speed"], ["/vehicles/5/gap"]]
+
+
+def test_a_recording_of_several_guarded_cars_shows_each_car_and_whose_override_it_was(tmp_path, capsys):
+    """``--rerun`` with ``--controlled N``: the guarded cars are drawn and labelled, the view follows car 0, each car
+    has its own inputs and admissible bands (tabs of one plot per unit), and each override event names its car:
+    as many events per car as that car's counted overrides."""
+    import json
+    import re
+
+    from guardian.cli import main
+    from guardian.recording.rerun import read_entities, read_texts, rollout_blueprint
+
+    rrd = tmp_path / "fleet.rrd"
+    assert main(["rollout", "--env", "highway-v0", "--controlled", "2", "--agent", "reckless", "--episodes", "1",
+                 "--rerun", str(rrd), "--json"]) == 0
+    counts = json.loads(capsys.readouterr().out)
+    entities = read_entities(rrd)
+    assert entities["/road/guarded"] == entities["/road/follow"] > 1 and "/road/ego" not in entities
+    for k in (0, 1):
+        assert entities[f"/cars/car_{k}/inputs/applied/throttle"] == entities["/road/guarded"] + 1   # + its style
+        assert f"/cars/car_{k}/admissible/acceleration/low" in entities
+    events = read_texts(rrd, "/events/override")
+    per_car = [sum(bool(re.match(rf"step \d+ \(car {k}, ", e)) for e in events) for k in (0, 1)]
+    assert per_car == [c["override_steps"] for c in counts["agents"]] and sum(per_car) == len(events) > 0
+    env = gym.make("highway-v0", config={"controlled_vehicles": 3})
+    env.reset(seed=0)
+    _, side = rollout_blueprint(env.unwrapped, overtake=False, cars=3).root_container.contents
+    tabs = [c for c in side.contents if type(c).__name__ == "Tabs"]
+    assert [[str(c) for c in tab.contents[0].contents][0] for tab in tabs] == \
+        [f"/cars/car_{k}/inputs/proposed/throttle" for k in range(3)]
