@@ -3,6 +3,7 @@
     python docs/screenshots/take.py                 # run the three commands below, then screenshot
     python docs/screenshots/take.py --record-to DIR # the same, keeping the .rrd files in DIR
     python docs/screenshots/take.py --rrd-dir DIR   # screenshot DIR/{overtake,merge,replay}.rrd as they are
+    python docs/screenshots/take.py --only merge    # one of them
 
 Each recording is served with ``rerun --serve-web FILE.rrd`` and opened in headless Chromium (WebGL through
 SwiftShader; ``apt-get install chromium``, ``pip install playwright``). Nothing is clicked or zoomed: the
@@ -36,20 +37,22 @@ SIZE = {"width": 1600, "height": 1000}
 COMMANDS = {
     "overtake": ["guardian", "rollout", "--env", "guardian/HighwayOvertake-v0", "--agent", "seek",
                  "--episodes", "1", "--seed", "0"],
-    # --rerun records one car: the CLI refuses it beside --controlled (several guarded cars)
-    "merge": ["guardian", "rollout", "--env", "merge-v0", "--agent", "reckless", "--episodes", "1", "--seed", "0"],
+    # three guarded cars on merge-v0's road among medium traffic (guardian/Merge-v0), 8 s: the road ends at 460 m, car 0 starts at 238 m
+    "merge": ["guardian", "rollout", "--env", "guardian/Merge-v0", "--agent", "merge", "--action", "meta",
+              "--controlled", "3", "--env-config", "traffic=medium", "--env-config", "duration=8", "--episodes", "1",
+              "--seed", "0"],
     # a one-minute generated highD-format recording; input bounds from the data raise self-safety overrides
     "replay": ["guardian", "replay", "{highd}", "--input-bounds", "data", "--no-cache"],
 }
 
 
-def record(out: Path) -> None:
-    """Run the product's commands, writing out/NAME.rrd."""
+def record(out: Path, names) -> None:
+    """Run the product's commands ``names``, writing out/NAME.rrd."""
     highd = out / "highd"
     steps = [("highd", ["guardian", "highd", "generate", "--out", str(highd), "--recordings", "1",
-                        "--minutes", "1", "--seed", "0"])]
+                        "--minutes", "1", "--seed", "0"])] if "replay" in names else []
     steps += [(name, [str(highd) if a == "{highd}" else a for a in cmd] + ["--rerun", str(out / f"{name}.rrd")])
-              for name, cmd in COMMANDS.items()]
+              for name, cmd in COMMANDS.items() if name in names]
     for name, cmd in steps:
         t0 = time.time()
         print("$", " ".join(cmd), flush=True)
@@ -131,17 +134,18 @@ def main() -> None:
     ap.add_argument("--rrd-dir", type=Path, help="take DIR/{overtake,merge,replay}.rrd instead of recording")
     ap.add_argument("--record-to", type=Path, help="where the commands write their .rrd (default: a temp folder)")
     ap.add_argument("--out", type=Path, default=HERE, help="where the PNGs go (default: beside this script)")
+    ap.add_argument("--only", choices=sorted(COMMANDS), nargs="+", default=list(COMMANDS), help="these recordings only")
     args = ap.parse_args()
     t0 = time.time()
     rrd_dir = args.rrd_dir
     if rrd_dir is None:
         rrd_dir = args.record_to or Path(tempfile.mkdtemp(prefix="guardian-shots-"))
         rrd_dir.mkdir(parents=True, exist_ok=True)
-        record(rrd_dir)
+        record(rrd_dir, args.only)
     from playwright.sync_api import sync_playwright
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        for name in COMMANDS:
+        for name in args.only:
             screenshot(browser, rrd_dir / f"{name}.rrd", args.out / f"{name}.png")
         browser.close()
     print(f"done in {time.time() - t0:.0f} s", file=sys.stderr)

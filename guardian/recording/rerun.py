@@ -20,6 +20,15 @@ ROLLOUT_VIEW = 300.0   # [m] of road in view when a rollout recording opens (a r
 PROPOSED, APPLIED, ADMISSIBLE = (220, 50, 50), (30, 30, 30), (40, 160, 60)
 
 
+def follow_labels(rec, labelled) -> None:
+    """``road/follow/labels``: each ``(x, y, name)`` (x from the followed car) as a label in the followed frame. The
+    viewer draws a label where its entity's position lies in the view's own frame, ignoring the transform between
+    (rerun 0.41): a label on a box under ``road/`` appeared a car's world x from the view's left edge, or not at
+    all."""
+    rec.log("road/follow/labels", rr.Points2D([[x, y] for x, y, _ in labelled], labels=[n for _, _, n in labelled],
+                                              radii=0.05, colors=[(20, 20, 20)] * len(labelled)))
+
+
 FLEET_SHOWN = 4   # guarded cars whose plots a recording of several opens on (every car's are in the file)
 
 
@@ -363,7 +372,8 @@ class GuardianRecorder(_Closing):
 
     * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
       ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in
-      highway-env's renderer); ``road/follow`` a frame at the ego's x that the road view is seen from. With several
+      highway-env's renderer); ``road/follow`` a frame at the ego's x that the road view is seen from, and
+      ``road/follow/labels`` the names ("ego", "lead", "car K") in that frame. With several
       guarded cars (``--controlled N``): ``road/guarded`` the cars labelled ``car K``, the view follows car 0, and
       each car's series below are under ``cars/car_K/`` (its events name it)
     * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
@@ -419,13 +429,14 @@ class GuardianRecorder(_Closing):
                               half_sizes=[[v.LENGTH / 2, v.WIDTH / 2] for v in vs],
                               colors=[colour] * len(vs), labels=labels)
 
-        rec.log("road/follow", rr.Transform3D(translation=[float(guarded[0].position[0]), 0.0, 0.0]))
-        if fleet:
-            rec.log("road/guarded", boxes(guarded, (40, 180, 60), [f"car {k}" for k in range(len(guarded))]))
-        else:
-            rec.log("road/ego", boxes([ego], (40, 180, 60), ["ego"]))
+        follow = float(guarded[0].position[0])
+        rec.log("road/follow", rr.Transform3D(translation=[follow, 0.0, 0.0]))
+        named = list(zip(guarded, [f"car {k}" for k in range(len(guarded))] if fleet else ["ego"]))
+        rec.log("road/guarded" if fleet else "road/ego", boxes(guarded, (40, 180, 60)))
         if lead is not None:
-            rec.log("road/lead", boxes([lead], (230, 150, 30), ["lead"]))
+            rec.log("road/lead", boxes([lead], (230, 150, 30)))
+            named.append((lead, "lead"))
+        follow_labels(rec, [(float(v.position[0]) - follow, float(v.position[1]), name) for v, name in named])
         traffic = [v for v in base.road.vehicles if not any(v is c for c in guarded) and v is not lead]
         rec.log("road/traffic", boxes(traffic, (60, 120, 220)))
         for car, r in (enumerate(g["agents"]) if fleet else [(None, g)]):

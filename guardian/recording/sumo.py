@@ -1,7 +1,8 @@
 """rerun recordings of guarded SUMO episodes (viewer: ``rerun FILE.rrd``), in the road model's frame.
 
 * ``road/lanes``: the lane lines (static); ``road/guarded``: the guarded bodies, green, amber on a step the guardian
-  changed for safety, red on a fail-safe step, labelled with their names; ``road/traffic``: SUMO's cars, blue;
+  changed for safety, red on a fail-safe step, labelled with their names (``road/follow/labels``, in the followed
+  frame: see ``guardian.recording.rerun.follow_labels``); ``road/traffic``: SUMO's cars, blue;
   ``road/shadows``: the shadow vehicles SUMO's drivers see (grey);
 * ``inputs/<vehicle>/{acceleration,steering}/{proposed,applied}``: what each driver proposed and what was applied;
 * ``events/override``: one line per safety override (time, vehicle, what changed, proposed -> applied, the reasons);
@@ -19,7 +20,7 @@ import numpy as np
 import rerun as rr
 
 from guardian.adapters.sumo.scene import corners
-from guardian.recording.rerun import save_to
+from guardian.recording.rerun import follow_labels, save_to
 
 GREEN, AMBER, RED, BLUE, GREY = (40, 180, 60), (240, 170, 30), (220, 50, 50), (60, 120, 220), (150, 150, 150)
 VIEW = 200.0  # [m] of road in view on opening
@@ -37,6 +38,7 @@ class SumoRecorder:
         self.path, self._saved, self.t0, self.t = Path(path), False, 0.0, 0.0
         self._marks: dict = {}
         self._followed = None   # the guarded vehicle the road view follows
+        self._follow_x = 0.0    # where it was last
 
     def __enter__(self):
         return self
@@ -100,9 +102,10 @@ class SumoRecorder:
 
         for b in guarded:
             if b.name == self._followed:
-                self.rec.log("road/follow", rr.Transform3D(translation=[float(b.x), 0.0, 0.0]))
-        self.rec.log("road/guarded", boxes(guarded, [self._marks.get(b.name, GREEN) for b in guarded],
-                                           [b.name for b in guarded]))
+                self._follow_x = float(b.x)
+                self.rec.log("road/follow", rr.Transform3D(translation=[self._follow_x, 0.0, 0.0]))
+        self.rec.log("road/guarded", boxes(guarded, [self._marks.get(b.name, GREEN) for b in guarded]))
+        follow_labels(self.rec, [(float(b.x) - self._follow_x, float(b.y), b.name) for b in guarded])
         self.rec.log("road/traffic", boxes(traffic, [BLUE] * len(traffic)))
         self.rec.log("road/shadows", boxes(shadows, [GREY] * len(shadows)))
 

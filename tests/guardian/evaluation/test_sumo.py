@@ -332,7 +332,7 @@ def test_a_rerun_recording_shows_every_body_and_every_safety_override(tmp_path):
         r = run_episode(SumoSetting(seconds=10.0, warmup=20.0, guarded=2), "random", seed=1, recorder=recorder)
     rows = read_entities(path)
     assert rows["/road/guarded"] == rows["/road/traffic"] == rows["/road/shadows"] == r["steps"] > 0
-    assert rows["/road/follow"] == r["steps"]   # the road view follows the first guarded vehicle at every step
+    assert rows["/road/follow"] == rows["/road/follow/labels"] == r["steps"]   # the view follows the first guarded vehicle
     assert rows["/inputs/guarded.0/acceleration/applied"] == r["steps"]
     overrides = read_texts(path, "/events/override")
     assert len(overrides) == r["safety_overrides"] > 0 and all(t.startswith("t=") for t in overrides)

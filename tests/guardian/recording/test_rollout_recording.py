@@ -36,7 +36,23 @@ def test_a_rollout_recording_follows_the_ego_not_kilometres_of_road(tmp_path):
     rrd = tmp_path / "run.rrd"
     assert main(["rollout", "--env", "highway-fast-v0", "--episodes", "1", "--rerun", str(rrd)]) == 0
     entities = read_entities(rrd)
-    assert entities["/road/follow"] == entities["/road/ego"] > 1
+    assert entities["/road/follow"] == entities["/road/ego"] == entities["/road/follow/labels"] > 1
+    labels = label_points(rrd)   # in the followed frame (the viewer ignores the transform when it places a label)
+    assert all(by_name["ego"][0] == 0.0 for by_name in labels)
+
+
+def label_points(rrd) -> list[dict]:
+    """Each step's ``road/follow/labels``: ``{name: (x, y)}``."""
+    from rerun.chunk import RrdReader
+
+    out = []
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path == "/road/follow/labels":
+            batch = chunk.to_record_batch()
+            for points, names in zip(batch.column("Points2D:positions").to_pylist(),
+                                     batch.column("Points2D:labels").to_pylist()):
+                out.append({n: tuple(p) for n, p in zip(names, points)})
+    return out
 
 
 def test_the_override_events_are_the_counted_overrides_and_read_as_a_person_reads_them(tmp_path, capsys):
@@ -89,6 +105,7 @@ def test_a_recording_of_several_guarded_cars_shows_each_car_and_whose_override_i
     counts = json.loads(capsys.readouterr().out)
     entities = read_entities(rrd)
     assert entities["/road/guarded"] == entities["/road/follow"] > 1 and "/road/ego" not in entities
+    assert all(set(step) == {"car 0", "car 1"} and step["car 0"][0] == 0.0 for step in label_points(rrd))
     for k in (0, 1):
         assert entities[f"/cars/car_{k}/inputs/applied/throttle"] == entities["/road/guarded"] + 1   # + its style
         assert f"/cars/car_{k}/admissible/acceleration/low" in entities
