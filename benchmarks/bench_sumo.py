@@ -1,13 +1,15 @@
 """The guardian's cost per SUMO step beside SUMO's own: reading the scene, deciding, and SUMO's step.
 
 Run: python benchmarks/bench_sumo.py [--episodes 4] [--seconds 60] [--agent reckless] [--traffic Krauss]
-          [--guarded 1] [--length 3000] [--json]
+          [--guarded 1] [--length 3000] [--road straight|merge|exit] [--json]
 
 Runs guarded episodes of ``guardian.evaluation.sumo`` (libsumo in process, ``--guarded`` vehicles) with timers around
 SUMO's ``simulationStep``, the scene read (every vehicle's body from SUMO, once per step), the scene built and the
 decision (``BicycleGuardian.step``) per guarded vehicle; prints each one's median and p99 in milliseconds, the
 traffic's size, the wall time one simulated hour would take at those medians, and the wall time measured (warm-up,
-insertion, shadows and counting included). Run it on a quiet machine.
+insertion, shadows and counting included), and the process's CPU time per episode (SUMO runs in the process: its
+warm-up, the guardian and the counts; a figure other jobs on the machine inflate less than wall times, for comparing
+two versions of the code). Run it on a quiet machine.
 """
 from __future__ import annotations
 
@@ -20,6 +22,9 @@ import numpy as np
 import guardian.evaluation.sumo as sumo_run
 from guardian.adapters.sumo.network import HighwayNet, Traffic
 from guardian.evaluation.sumo_agents import AGENTS
+
+
+ROADS = {"straight": {}, "merge": {"ramp_at": 1000.0}, "exit": {"exit_at": 1000.0}}
 
 
 def timed(store: list, fn):
@@ -39,6 +44,8 @@ def main() -> None:
     p.add_argument("--guarded", type=int, default=1, help="guarded vehicles (1)")
     p.add_argument("--length", type=float, default=3000.0, help="the highway's length [m] (3000)")
     p.add_argument("--traffic", default="Krauss", choices=("Krauss", "IDM", "EIDM"))
+    p.add_argument("--road", default="straight", choices=("straight", "merge", "exit"),
+                   help="the straight highway, or one with an on-ramp or an exit at 1,000 m")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     import contextlib
@@ -61,11 +68,11 @@ def main() -> None:
     real_body = sumo_run.Frame.body
     sumo_run.Frame.body = timed(times.setdefault("body_reads", []), real_body)
     setting = sumo_run.SumoSetting(seconds=args.seconds, traffic=Traffic(car_following=args.traffic),
-                                   guarded=args.guarded, net=HighwayNet(length=args.length))
-    t0 = time.perf_counter()
+                                   guarded=args.guarded, net=HighwayNet(length=args.length, **ROADS[args.road]))
+    t0, cpu0 = time.perf_counter(), time.process_time()
     try:
         results = [sumo_run.run_episode(setting, args.agent, seed) for seed in range(args.episodes)]
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     finally:
         libsumo.simulationStep, sumo_run.BicycleGuardian.step, sumo_run.scene = real_step, real_decide, real_scene
         sumo_run.Frame.body = real_body
@@ -75,7 +82,8 @@ def main() -> None:
     out = {"episodes": args.episodes, "guarded": args.guarded, "sumo_steps": steps, "guarded_steps": vehicle_steps,
            "guarded_mean": vehicle_steps / max(steps, 1), "vehicles_mean": float(np.mean(vehicles)),
            "reads_ms_per_step": 1e3 * sum(times["body_reads"]) / max(steps, 1), "reads_per_step": reads_per_step,
-           "wall_s": round(wall, 1), "simulated_s": steps * setting.step_length}
+           "wall_s": round(wall, 1), "simulated_s": steps * setting.step_length, "road": args.road,
+           "cpu_s_per_episode": round(cpu / args.episodes, 3)}
     for name in ("sumo_step", "scene", "decision"):
         ms = 1e3 * np.array(times[name])  # SUMO's steps: the warm-ups' too (the same traffic)
         out[name] = {"median_ms": round(float(np.median(ms)), 4), "p99_ms": round(float(np.percentile(ms, 99)), 4)}
@@ -91,6 +99,7 @@ def main() -> None:
     for name in ("sumo_step", "scene", "decision"):
         print(f"  {name:10s} median {out[name]['median_ms']:.3f} ms  p99 {out[name]['p99_ms']:.3f} ms")
     print(f"  reading every body from SUMO: {out['reads_ms_per_step']:.3f} ms per step ({reads_per_step:.0f} reads)")
+    print(f"  CPU per episode (SUMO with its warm-up, the guardian, the counts): {out['cpu_s_per_episode']:.2f} s")
     print(f"  one simulated hour at these medians: {out['wall_s_per_simulated_hour']:g} s; measured (warm-up and "
           f"insertion included): {out['measured_wall_s_per_simulated_hour']:g} s")
 

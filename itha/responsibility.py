@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from itha.car_following import admissible_inputs, speeds_to_inputs
+from itha.car_following import INNER, MaximalSet, admissible_inputs, headway_floor, speeds_to_inputs
 from itha.road import LANE_SHIFT, LEFT, RIGHT, STAY, HighwayParams, local_state
 from rcis.intervals import intersect_intervals
 
@@ -50,6 +50,24 @@ class ChoiceVerdict:
     trigger: str
     inputs: list            # feasible ego inputs (intervals); [] if the choice is not allowed
     reason: str = ""        # the first constraint that emptied it
+
+
+FAR_SLACK = 1.0   # [m] beyond the least gap that is safe at every speed, against rounding in the floor
+
+
+def far_enough(S) -> float:
+    """A gap beyond which every state of the closed-form set ``S`` with both speeds in ``[0, v_max]`` is inside it
+    (the floor grows with the gap and the lead's speed and falls with the ego's: its least value is at the ego's
+    ``v_max`` behind a standing lead): a car that far away constrains nothing, and the checks may skip it without
+    changing an answer. ``inf`` for any other set (nothing skipped)."""
+    if type(S) is not MaximalSet:
+        return float("inf")
+    p = S.params
+    cache = S.__dict__.setdefault("_far_enough", {})
+    if p not in cache:
+        least = float(headway_floor(p, np.array([p.v_max]), np.array([0.0]), np.array([0.0]))[0])
+        cache[p] = p.h_min + INNER - least + FAR_SLACK
+    return cache[p]
 
 
 class EgoSupervisor:
@@ -128,12 +146,16 @@ class EgoSupervisor:
                 return [k for k in cands if not any(j != k and pn[j] <= pn[k] - lengths[k] for j in sure)]
             return [k for k in cands if not any(j != k and pn[j] - lengths[j] >= pn[k] for j in sure)]
 
+        free, free_others = far_enough(self.S), far_enough(self.S_others)
         # 1. the ego's own reset: every car that can lead it in the target lane.
         leads = [k for k in range(n) if k != ego and pn[k] >= pn[ego] and may_be_in(k, target)]
         if not trivial:
             leads = unhidden(leads, ahead=True)
         for k in leads:
-            speeds = self.S.speed_intervals(pn[k] - lengths[k] - pn[ego], float(cf.worst_lead_speed(v[k])))
+            vL = float(cf.worst_lead_speed(v[k]))
+            if pn[k] - lengths[k] - pn[ego] >= free and 0.0 <= vL <= cf.v_max:
+                continue   # every ego speed keeps the ego in C towards it: [0, v_max], nothing cut
+            speeds = self.S.speed_intervals(pn[k] - lengths[k] - pn[ego], vL)
             allowed = intersect_intervals(allowed, speeds)
             if not allowed:
                 return [], f"ego too close to car {k} ahead in lane {target}"
@@ -144,6 +166,8 @@ class EgoSupervisor:
         So, co = self.S_others, self.S_others.params
         for k in followers:
             v_fast = min(v[k] + dt * co.u_max, co.v_max)
+            if pn[ego] - lengths[ego] - pn[k] >= free_others and v_fast >= 0.0:
+                continue   # inside its set behind any ego speed: [0, v_max], nothing cut
             allowed = intersect_intervals(allowed, So.lead_speed_intervals(v_fast, pn[ego] - lengths[ego] - pn[k]))
             if not allowed:
                 return [], f"car {k} behind in lane {target} could not stay safe"
@@ -159,6 +183,8 @@ class EgoSupervisor:
                 new_leads = unhidden(new_leads, ahead=True)
             for k in new_leads:
                 x = (v_fast, pn[k] - lengths[k] - pn[c], float(co.worst_lead_speed(v[k])))
+                if x[1] >= free_others and 0.0 <= x[0] <= co.v_max and 0.0 <= x[2] <= co.v_max:
+                    continue   # inside the set: too far to matter
                 if not So.contains(np.array([x]))[0]:
                     return [], f"car {c} behind in lane {old} would be exposed to car {k}"
         return allowed, ""

@@ -215,3 +215,29 @@ def test_section_7_4_1_runs_are_safe(S):
 def test_closed_form_set_runs_the_same_experiment():
     r = highway_experiment(runs=1, steps=60, seed=1, S=MaximalSet(CF))
     assert r["ordered"]["unsafe_steps"] == 0
+
+
+def test_cars_beyond_any_reach_are_skipped_without_changing_an_answer(monkeypatch):
+    """``lane_change_speeds`` skips a car farther than ``far_enough`` (the closed-form set holds at every speed
+    there): on crowded random roads with cars near and far, every answer (speeds and reason, both ρ̂) equals the
+    answer that checks every car, and the skip did happen."""
+    import itha.responsibility as responsibility
+
+    S, prm = MaximalSet(CarFollowingParams()), HighwayParams(n_lanes=3, n_cars=40, ego_lane=2)
+    far = responsibility.far_enough(S)
+    rng, skipped = np.random.default_rng(4), 0
+    for _ in range(150):
+        n = int(rng.integers(5, 40))
+        p = [0.0] + list(rng.uniform(-4 * far, 4 * far, n))
+        v = [float(rng.uniform(0, 30))] + list(rng.uniform(-1, 31, n))    # some outside [0, v_max]: never skipped
+        lane = [2] + list(rng.integers(1, 4, n))
+        lengths = list(rng.uniform(0, 12, n + 1))
+        for overapprox, trig in itertools.product(("trivial", "ordered"), ("left", "right")):
+            silent = set(rng.choice(np.arange(1, n + 1), size=n // 2, replace=False).tolist())
+            sup = EgoSupervisor(prm, S, overapprox)
+            fast = sup.lane_change_speeds(p, v, lane, 0, trig, {}, lengths, silent)
+            with monkeypatch.context() as m:
+                m.setattr(responsibility, "far_enough", lambda _: float("inf"))
+                assert sup.lane_change_speeds(p, v, lane, 0, trig, {}, lengths, silent) == fast
+            skipped += any(abs(x) > far + 12 for x in p[1:])
+    assert skipped > 100
