@@ -221,7 +221,7 @@ def env_config_option(env_id: str, pairs: list) -> dict:
     """``KEY=VALUE`` pairs (values read as JSON, else as text) or JSON objects as the env's config, later
     ones overriding earlier ones; a key the env does not have, or a value not of its kind or out of its
     range (``guardian.adapters.highway_env.checks.check_config``), is refused with its name."""
-    from guardian.adapters.highway_env.checks import check_config, env_class
+    from guardian.adapters.highway_env.checks import check_config, check_keys, env_class
 
     defaults = env_class(env_id).default_config()
     out = {}
@@ -241,10 +241,8 @@ def env_config_option(env_id: str, pairs: list) -> dict:
                 given = {key: json.loads(text)}
             except json.JSONDecodeError:
                 given = {key: text}
-        for key, value in given.items():
-            if key not in defaults:
-                raise ValueError(f"--env-config: {env_id} has no config key {key!r}")
-            out[key] = value
+        out.update(given)
+    check_keys(defaults, out, f"--env-config: {env_id}")
     check_config(defaults, out, f"--env-config: {env_id}")
     return out
 

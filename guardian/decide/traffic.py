@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 from guardian.model.scene import Car, Scene  # noqa: F401 (the scene the decisions read)
 from itha.car_following import CarFollowingParams, MaximalSet
-from itha.responsibility import EgoSupervisor
+from itha.responsibility import EgoSupervisor, far_enough
 from itha.road import LEFT, RIGHT, HighwayParams
 from rcis.intervals import intersect_intervals
 
@@ -150,8 +150,12 @@ class TrafficSupervisor:
             return f"{name} has crashed"
         if not 0 <= car.speed <= p.v_max:
             return f"{name} drives at {car.speed:.2f} m/s, outside the traffic model's [0, {p.v_max:g}] m/s"
+        far = far_enough(self.S_others)
         for lane in sorted(car.lanes):
             for lead in scene.leads_of(car, lane):
+                if _gap(car, lead) >= far and _gap_after_step(p, car, lead) - self.wreck_margin >= far \
+                        and max(p.next_speed(car.speed, p.u_min), 0.0) <= p.v_max:
+                    continue   # it can stop behind this car whatever that car is: its verdict is not needed
                 if (yield lead):
                     h_next = _gap_after_step(p, car, lead) - self.wreck_margin
                     v_next = max(p.next_speed(car.speed, p.u_min), 0.0)

@@ -107,3 +107,30 @@ def test_a_queue_of_a_thousand_cars_is_judged_without_recursion_and_as_the_rule_
     assert all(sup.at_risk(scene, c) for c in cars)
     scene, cars = queue(65.0)
     assert sup.at_risk(scene, cars[-1]) == "" and sup.at_risk(scene, cars[0]) == ""
+
+
+def test_the_at_risk_chain_stops_at_a_car_far_enough_ahead_with_the_same_verdicts(monkeypatch):
+    """A car far enough behind the car it follows (``far_enough``: inside its set at any speed, even behind a car
+    standing still from its next position on) does not ask for that car's verdict. On random roads with wrecks, cars
+    outside the model's speeds, bodies over two lanes and cars near and far, every verdict equals the one that
+    walks the whole chain, and the shortcut was taken."""
+    import numpy as np
+
+    import guardian.decide.traffic as traffic
+    from itha.responsibility import far_enough
+
+    rng, far = np.random.default_rng(8), far_enough(TrafficSupervisor(PARAMS).S_others)
+    taken = 0
+    for _ in range(200):
+        n = int(rng.integers(3, 30))
+        cars = tuple(Car(float(rng.uniform(0, 8 * far)), float(rng.uniform(-1, 42)),
+                         frozenset(rng.choice([1, 2], size=int(rng.integers(1, 3)), replace=False).tolist()),
+                         float(rng.uniform(0, 10)), f"car {k}", crashed=bool(rng.random() < 0.1)) for k in range(n))
+        scene = Scene(_car(float(rng.uniform(0, 8 * far)), 20.0, 5.0, "ego", (1,)), cars, 2)
+        short = [TrafficSupervisor(PARAMS, wreck_margin=3.0).at_risk(scene, c) for c in cars]
+        with monkeypatch.context() as m:
+            m.setattr(traffic, "far_enough", lambda _: float("inf"))
+            assert [TrafficSupervisor(PARAMS, wreck_margin=3.0).at_risk(scene, c) for c in cars] == short
+        fronts = sorted(c.front for c in cars)
+        taken += any(b - a > far + 12 for a, b in zip(fronts, fronts[1:]))
+    assert taken > 100
