@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from itha.car_following import INNER, MaximalSet, admissible_inputs, headway_floor, speeds_to_inputs
+from itha.car_following import INNER, MaximalSet, _floor, admissible_inputs, speeds_to_inputs
 from itha.road import LANE_SHIFT, LEFT, RIGHT, STAY, HighwayParams, local_state
 from rcis.intervals import intersect_intervals
 
@@ -65,7 +65,7 @@ def far_enough(S) -> float:
     p = S.params
     cache = S.__dict__.setdefault("_far_enough", {})
     if p not in cache:
-        least = float(headway_floor(p, np.array([p.v_max]), np.array([0.0]), np.array([0.0]))[0])
+        least = _floor(p, p.v_max, 0.0, 0.0)   # the scalar kernel ITHA's checks load anyway
         cache[p] = p.h_min + INNER - least + FAR_SLACK
     return cache[p]
 

@@ -43,6 +43,20 @@ from guardian.model.scene import Car
 SCALAR = (int, float)
 
 
+def remembered(road, key: tuple, compute):
+    """``compute()``, remembered under ``key`` for as long as ``road`` (a ``Road`` or ``RoadMap``: what is remembered
+    must be a function of the road and of ``key`` alone, e.g. geometry read from the network the map was read from,
+    or a sensed car as the road's lanes see it). At most 50,000 answers: then it starts again."""
+    memo = road.__dict__.get("_memo")
+    if memo is None or len(memo) > 50_000:
+        memo = {}
+        object.__setattr__(road, "_memo", memo)
+    out = memo.get(key)
+    if out is None:
+        out = memo[key] = compute()
+    return out
+
+
 @dataclass(frozen=True)
 class Road:
     """A straight multi-lane road along x: ``n_lanes`` lanes of ``lane_width``, lane 0 at ``y = 0``."""
@@ -63,6 +77,9 @@ class Road:
     def beside(self, slots, x: float) -> frozenset:
         """The lanes next to ``slots`` (the road has them everywhere)."""
         return frozenset(k + s for k in slots for s in (-1, 1) if 0 <= k + s < self.n_lanes)
+
+    def memo(self, key: tuple, compute):
+        return remembered(self, key, compute)
 
     def nearest_slot(self, x: float, y: float) -> int:
         """The lane whose centre line is nearest to ``(x, y)``."""
@@ -314,16 +331,7 @@ class RoadMap:
         return out
 
     def memo(self, key: tuple, compute):
-        """``compute()``, remembered under ``key`` for as long as this map (a function of the road and of
-        ``key`` alone: geometry read from the network this map was read from)."""
-        memo = self.__dict__.get("_memo")
-        if memo is None or len(memo) > 50_000:
-            memo = {}
-            object.__setattr__(self, "_memo", memo)
-        out = memo.get(key)
-        if out is None:
-            out = memo[key] = compute()
-        return out
+        return remembered(self, key, compute)
 
     def _one_body_slots(self, x, y, h, length, width, margin, dx, dy) -> frozenset:
         """The slots one body overlaps (``body_slots``), in floats."""

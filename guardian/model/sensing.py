@@ -65,7 +65,7 @@ def scene_of(road, ego: Car, sensed, reversing, margin: float, fixed=()) -> Scen
     """The ``Scene`` of ``ego`` among ``sensed`` cars on ``road`` (``Road`` or ``RoadMap``); ``fixed`` are cars
     added as they are (a lane's end as a standing car of length 0)."""
     moving = [s for s in sensed if not s.fixed]
-    cars = [car_of(road, s, margin) for s in moving]
+    cars = [road.memo(("car", s, margin), lambda s=s: car_of(road, s, margin)) for s in moving]  # once per reading
     own = [road.numbering.itha(s.own) for s in moving]
     cars = reversing.lengthen(cars, own)
     cars += [car_of(road, s, margin) for s in sensed if s.fixed]

@@ -218,3 +218,23 @@ def test_a_branch_is_skipped_only_for_bodies_clear_of_it():
         assert road.body_slots(x, y, h, 5.0, 2.0, margin, dx, dy) == corridor.body_slots(x, y, h, 5.0, 2.0, margin,
                                                                                           dx, dy)
     assert skipped > 500
+
+
+def test_a_reading_is_turned_into_a_car_once_and_a_new_reading_anew():
+    """``scene_of`` remembers each sensed car's ``Car`` on the road (every guarded car's scene reads the same
+    bodies in a step): the same reading gives the same car, any change to it (a speed, a lateral position that
+    reaches another lane, an announcement) gives the car of the new reading."""
+    from dataclasses import replace
+
+    from guardian.model.reversing import ReversingCover
+    from guardian.model.scene import Car
+    from guardian.model.sensing import Sensed, car_of, scene_of
+
+    for road in (Road(3, 4.0), RoadMap(4.0, 3, 0.0, (((-np.inf, np.inf),),) * 3, (), (), ())):
+        ego = Car(0.0, 20.0, frozenset({2}), 5.0, "ego")
+        s = Sensed("car", 20.0, 4.0, 0.0, 25.0, 5.0, 2.0, 22.5, 1)
+        first = scene_of(road, ego, [s], ReversingCover(0.0), 0.3).others[0]
+        assert scene_of(road, ego, [s], ReversingCover(0.0), 0.3).others[0] is first == car_of(road, s, 0.3)
+        for changed in (replace(s, speed=5.0), replace(s, y=6.2), replace(s, announced=frozenset({3}))):
+            car = scene_of(road, ego, [changed], ReversingCover(0.0), 0.3).others[0]
+            assert car == car_of(road, changed, 0.3) != first
