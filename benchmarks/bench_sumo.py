@@ -76,6 +76,9 @@ def main() -> None:
     finally:
         libsumo.simulationStep, sumo_run.BicycleGuardian.step, sumo_run.scene = real_step, real_decide, real_scene
         sumo_run.Frame.body = real_body
+    if not times["decision"]:
+        raise SystemExit(f"no guarded vehicle was inserted in {args.episodes} episodes (inserted: "
+                         f"{[r['inserted'] for r in results]}): give the road room for them (--length)")
     steps = sum(r["steps"] for r in results)
     vehicle_steps = sum(r["vehicle_steps"] for r in results)
     reads_per_step = len(times["body_reads"]) / max(steps, 1)
