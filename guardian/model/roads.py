@@ -32,7 +32,7 @@ a margin and swept by its velocity) meets a strip of slot ``k`` present where th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -383,7 +383,8 @@ def road_as_dict(road) -> dict:
     open_end = lambda v: None if math.isinf(v) else v  # noqa: E731
     return {"lanes": road.n_lanes, "lane_width": road.lane_width, "y0": road.y0,
             "spans": [[[open_end(lo), open_end(hi)] for lo, hi in spans] for spans in road.spans],
-            "branches": [{k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(s).items()} for s in road.branches],
+            "branches": [{f.name: (list(v) if isinstance(v := getattr(s, f.name), tuple) else v) for f in fields(s)}
+                         for s in road.branches],   # the fields only: a strip also remembers its chord
             "ends": [[k, s] for k, s in road.ends]}
 
 

@@ -202,7 +202,7 @@ def test_a_branch_is_skipped_only_for_bodies_clear_of_it():
     ramp = Strip("straight", (-300.0, 14.0), (0.0, 8.0), 3.2, math.dist((-300.0, 14.0), (0.0, 8.0)), 2, -300.0,
                  open_before=True)
     road = road_from_dict({**road_as_dict(RoadMap(3.2, 3, 0.0, (((-np.inf, np.inf),),) * 2 + (((0.0, 500.0),),),
-                                                  (), (), ())), "branches": [vars(ramp)]})
+                                                  (), (), ())), "branches": [road_as_dict(RoadMap(3.2, 3, 0.0, (), (ramp,), (), ()))["branches"][0]]})
     strip, rng, skipped = road.branches[0], np.random.default_rng(2), 0
     for _ in range(3000):
         x, y, h = float(rng.uniform(-320, 20)), float(rng.uniform(0, 20)), float(rng.normal(0, 0.4))
@@ -238,3 +238,24 @@ def test_a_reading_is_turned_into_a_car_once_and_a_new_reading_anew():
         for changed in (replace(s, speed=5.0), replace(s, y=6.2), replace(s, announced=frozenset({3}))):
             car = scene_of(road, ego, [changed], ReversingCover(0.0), 0.3).others[0]
             assert car == car_of(road, changed, 0.3) != first
+
+
+@pytest.mark.parametrize("env_id", ["merge-v0", "exit-v0"])
+def test_a_road_in_use_is_written_as_its_fields_and_read_back(env_id):
+    """A road remembers answers (bodies, readings, a strip's chord) beside its fields; what the service is sent is
+    the fields alone, and reads back as the same road (the service refused a road whose strips carried their chord)."""
+    import dataclasses
+    import json
+
+    from guardian.model.roads import road_as_dict, road_from_dict
+
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    road = read_road(env.unwrapped)
+    for strip in road.branches:
+        strip.local(1.0, 2.0), strip.local(np.array([1.0]), np.array([2.0]))
+    road.body_slots(100.0, 4.0, 0.1, 5.0, 2.0, 0.3)
+    spec = json.loads(json.dumps(road_as_dict(road)))
+    assert all(set(b) == set(road_as_dict(road_from_dict(spec))["branches"][0]) for b in spec["branches"])
+    assert not any(k.startswith("_") for b in spec["branches"] for k in b)
+    assert road_from_dict(spec) == dataclasses.replace(road, lane_table=())   # highway-env's lane ids stay home
