@@ -6,9 +6,10 @@
 Not a speed figure: the check a restructuring or a speed-up must pass ("the same decisions"). Each run hashes what
 the guardian decided at every step (sha256 of the JSON):
 
-* sumo: 12 SUMO episodes (libsumo, the `sumo` extra): the straight, merge and exit roads x the random, reckless and
-  SUMO drivers with one guarded vehicle, and the random driver with three; every proposal, applied input and
-  ``Decision``, every crash and every count of the episode;
+* sumo: 13 SUMO episodes (libsumo, the `sumo` extra): the straight, merge and exit roads x the random, reckless and
+  SUMO drivers with one guarded vehicle, the random driver with three, and one merge-road episode also decided by a
+  ``guardian serve`` scene session every step (the road and scenes over HTTP; its disagreements counted); every
+  proposal, applied input and ``Decision``, every crash and every count of the episode;
 * highway-env: 13 runs of two episodes (up to 40 policy steps) over every env family the guardian wraps (highway,
   highway-fast, merge-v0, guardian/Merge-v0 with one and two controlled cars, exit-v0, HighwayOvertake-v0; meta and
   continuous actions; random, seeking, line-hugging, brake-checking, oscillating and MPC drivers): every
@@ -89,7 +90,31 @@ def sumo_hashes() -> dict:
             hashed.h.update(json.dumps(counts, sort_keys=True, default=str).encode())
             out[f"sumo {road} {agent} guarded {guarded}"] = {"steps": hashed.decisions, "sha256": hashed.h.hexdigest()}
             print(f"  {list(out)[-1]}: {hashed.decisions} decisions", file=sys.stderr, flush=True)
+    out.update(_through_the_service(nets["merge"]))
     return out
+
+
+def _through_the_service(net) -> dict:
+    """One merge-road episode decided in process and, beside it, by a ``guardian serve`` scene session every step
+    (``guardian sumo --through-service``): the road, the vehicle and the scenes go over HTTP, and the service's
+    disagreements are counted into the hash."""
+    import argparse
+
+    from guardian.adapters.sumo.network import Traffic
+    from guardian.cli.sumo import _service
+    from guardian.evaluation.sumo import run_episode
+    from guardian.evaluation.sumo_setting import SumoSetting
+
+    hashed = _DecisionHash()
+    with _service(argparse.Namespace(through_service=True)) as ask:
+        counts = run_episode(SumoSetting(net=net, traffic=Traffic(car_following="IDM", sublane=True)), "random", 950,
+                             recorder=hashed, ask=ask)
+    counts.pop("crashes")
+    hashed.h.update(json.dumps(counts, sort_keys=True, default=str).encode())
+    run = "sumo merge random guarded 1, through the service"
+    print(f"  {run}: {hashed.decisions} decisions, {counts['service_disagreements']} disagreements", file=sys.stderr)
+    return {run: {"steps": hashed.decisions, "disagreements": counts["service_disagreements"],
+                  "sha256": hashed.h.hexdigest()}}
 
 
 def _plain(o):
