@@ -106,8 +106,8 @@ def first_use_notice(params) -> str:
     payloads = [bnd] + [_payload(n, params, settings, payload_key(bnd)) for n in SET_NAMES[1:]]
     if all(cache.path(name, p).exists() for name, p in zip(SET_NAMES, payloads)):
         return ""
-    known = {OvertakeParams(): ("about 15 s", "guardian rcis build"),   # the times of docs/performance.md, idle
-             OvertakeParams.among_traffic(): ("about 5 minutes", "guardian rcis build --ego-speed-min 0")}
+    known = {OvertakeParams(): ("about 25 s", "guardian rcis build"),   # measured on 2 idle cores (docs/performance.md)
+             OvertakeParams.among_traffic(): ("about 3.5 minutes", "guardian rcis build --ego-speed-min 0")}
     took, ahead = known.get(params, ("minutes", "guardian rcis build with the same parameters (see --help)"))
     return (f"guardian: building the overtake sets C_bnd, C_a and C_c for these parameters once ({took} on 2 idle "
             f"cores, longer on a busy machine), then kept in {cache.dir}. To build them ahead: {ahead}")

@@ -145,6 +145,6 @@ def test_a_library_built_on_first_use_is_announced_with_its_time_and_how_to_buil
     assert first_use_notice(OvertakeParams()) == ""          # the session's library is there
     monkeypatch.setenv("GUARDIAN_CACHE_DIR", str(tmp_path))
     notice = first_use_notice(OvertakeParams.among_traffic())
-    assert "about 5 minutes" in notice and notice.endswith("guardian rcis build --ego-speed-min 0")
+    assert "about 3.5 minutes" in notice and notice.endswith("guardian rcis build --ego-speed-min 0")
     assert str(tmp_path) in notice
     assert first_use_notice(OvertakeParams()).endswith("To build them ahead: guardian rcis build")
