@@ -20,6 +20,17 @@ ROLLOUT_VIEW = 300.0   # [m] of road in view when a rollout recording opens (a r
 PROPOSED, APPLIED, ADMISSIBLE = (220, 50, 50), (30, 30, 30), (40, 160, 60)
 
 
+GUARDED, OVERRIDDEN, FAILSAFE = (40, 180, 60), (200, 40, 200), (220, 50, 50)
+
+
+def override_mark(record: dict) -> tuple:
+    """A guarded car's colour on the road for its step's record: green, magenta when the guardian overrode it for
+    safety, red on a fail-safe step."""
+    if record.get("level") == "failsafe" or record.get("failsafe_steps"):
+        return FAILSAFE
+    return OVERRIDDEN if record.get("overridden") and record.get("safety_override", True) else GUARDED
+
+
 def follow_labels(rec, labelled) -> None:
     """``road/follow/labels``: each ``(x, y, name)`` (x from the followed car) as a label in the followed frame. The
     viewer draws a label where its entity's position lies in the view's own frame, ignoring the transform between
@@ -68,8 +79,10 @@ def rollout_blueprint(base, overtake: bool, cars: int = 1):
         plots = [rrb.Tabs(*_input_plots(k), active_tab=0) for k in range(min(cars, FLEET_SHOWN))]
     if overtake:
         plots.append(rrb.TimeSeriesView(origin="/intention", name="the lead's valid intentions"))
-    name = "road (ego green, lead amber, traffic blue), following the ego" if cars == 1 else \
-        "road (guarded cars green, traffic blue), following car 0"
+        plots.append(rrb.TextLogView(origin="/", contents=["/guardian/active_set", "/intention/log"],
+                                     name="the active set (each step) and the intentions' changes"))
+    name = "road (ego green, lead amber, traffic blue; ego magenta when overridden, red on fail-safe), following the ego" \
+        if cars == 1 else "road (guarded cars green, magenta when overridden, red on fail-safe; traffic blue), following car 0"
     return rrb.Blueprint(rrb.Horizontal(
         rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"], name=name, visual_bounds=bounds),
         rrb.Vertical(*plots, rrb.TextLogView(origin="/events", name="overrides and events"),
@@ -372,7 +385,8 @@ class GuardianRecorder(_Closing):
 
     * ``road/lanes`` lane markings (static, from the env's road); ``road/ego``, ``road/lead`` and
       ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in
-      highway-env's renderer); ``road/follow`` a frame at the ego's x that the road view is seen from, and
+      highway-env's renderer; a guarded car magenta on a step the guardian overrode for safety, red on a fail-safe
+      step, ``override_mark``); ``road/follow`` a frame at the ego's x that the road view is seen from, and
       ``road/follow/labels`` the names ("ego", "lead", "car K") in that frame. With several
       guarded cars (``--controlled N``): ``road/guarded`` the cars labelled ``car K``, the view follows car 0, and
       each car's series below are under ``cars/car_K/`` (its events name it)
@@ -424,21 +438,21 @@ class GuardianRecorder(_Closing):
         ego, lead = base.vehicle, getattr(base, "lead", None)
         guarded = list(base.controlled_vehicles) if fleet else [ego]
 
-        def boxes(vs, colour, labels=None):
+        def boxes(vs, colours):
             return rr.Boxes2D(centers=[[float(v.position[0]), float(v.position[1])] for v in vs],
-                              half_sizes=[[v.LENGTH / 2, v.WIDTH / 2] for v in vs],
-                              colors=[colour] * len(vs), labels=labels)
+                              half_sizes=[[v.LENGTH / 2, v.WIDTH / 2] for v in vs], colors=colours)
 
         follow = float(guarded[0].position[0])
         rec.log("road/follow", rr.Transform3D(translation=[follow, 0.0, 0.0]))
         named = list(zip(guarded, [f"car {k}" for k in range(len(guarded))] if fleet else ["ego"]))
-        rec.log("road/guarded" if fleet else "road/ego", boxes(guarded, (40, 180, 60)))
+        marks = [override_mark(r) for r in (g["agents"] if fleet else [g])]
+        rec.log("road/guarded" if fleet else "road/ego", boxes(guarded, marks))
         if lead is not None:
-            rec.log("road/lead", boxes([lead], (230, 150, 30)))
+            rec.log("road/lead", boxes([lead], [(230, 150, 30)]))
             named.append((lead, "lead"))
         follow_labels(rec, [(float(v.position[0]) - follow, float(v.position[1]), name) for v, name in named])
         traffic = [v for v in base.road.vehicles if not any(v is c for c in guarded) and v is not lead]
-        rec.log("road/traffic", boxes(traffic, (60, 120, 220)))
+        rec.log("road/traffic", boxes(traffic, [(60, 120, 220)] * len(traffic)))
         for car, r in (enumerate(g["agents"]) if fleet else [(None, g)]):
             self._inputs(car, r)
             self._override(car, r, episode, t)

@@ -75,6 +75,24 @@ def test_the_override_events_are_the_counted_overrides_and_read_as_a_person_read
     assert not any(re.search(r"\d\.\d{4,}", e) for e in events), events
     assert all(e.count(r) == 1 for e in events for r in e.split("; ")[1:]), events
     assert events[0].startswith("step 0 (episode 0, its step 1;")
+    from guardian.recording.rerun import FAILSAFE, GUARDED, OVERRIDDEN
+    colours = [c for step in entity_column(rrd, "/road/ego", "Boxes2D:colors") for c in step]
+    packed = {name: (r << 24) | (g << 16) | (b << 8) | 255 for name, (r, g, b) in
+              {"guarded": GUARDED, "overridden": OVERRIDDEN, "failsafe": FAILSAFE}.items()}
+    assert set(colours) <= set(packed.values())
+    assert sum(c != packed["guarded"] for c in colours) == len(events)      # each override marked on the road
+    assert colours.count(packed["failsafe"]) == sum("failsafe" in e for e in events)
+
+
+def entity_column(rrd, entity: str, column: str) -> list:
+    """Each logged row's ``column`` of ``entity`` in a recording."""
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path == entity:
+            rows.extend(r for r in chunk.to_record_batch().column(column).to_pylist() if r is not None)
+    return rows
 
 
 def test_a_highd_recording_opens_on_the_vehicles_the_events_name_not_on_every_vehicle():
