@@ -24,9 +24,6 @@ from guardian.adapters.sumo.network import HighwayNet, Traffic
 from guardian.evaluation.sumo_agents import AGENTS
 
 
-ROADS = {"straight": {}, "merge": {"ramp_at": 1000.0}, "exit": {"exit_at": 1000.0}}
-
-
 def timed(store: list, fn):
     def wrapper(*args, **kwargs):
         t0 = time.perf_counter()
@@ -45,7 +42,7 @@ def main() -> None:
     p.add_argument("--length", type=float, default=3000.0, help="the highway's length [m] (3000)")
     p.add_argument("--traffic", default="Krauss", choices=("Krauss", "IDM", "EIDM"))
     p.add_argument("--road", default="straight", choices=("straight", "merge", "exit"),
-                   help="the straight highway, or one with an on-ramp or an exit at 1,000 m")
+                   help="the straight highway, or one with an on-ramp or an exit a third of the way along")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     import contextlib
@@ -68,7 +65,7 @@ def main() -> None:
     real_body = sumo_run.Frame.body
     sumo_run.Frame.body = timed(times.setdefault("body_reads", []), real_body)
     setting = sumo_run.SumoSetting(seconds=args.seconds, traffic=Traffic(car_following=args.traffic),
-                                   guarded=args.guarded, net=HighwayNet(length=args.length, **ROADS[args.road]))
+                                   guarded=args.guarded, net=HighwayNet.of_road(args.road, length=args.length))
     t0, cpu0 = time.perf_counter(), time.process_time()
     try:
         results = [sumo_run.run_episode(setting, args.agent, seed) for seed in range(args.episodes)]

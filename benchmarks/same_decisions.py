@@ -76,6 +76,7 @@ def sumo_hashes() -> dict:
     from guardian.evaluation.sumo import run_episode
     from guardian.evaluation.sumo_setting import SumoSetting
 
+    # spelled out, not HighwayNet.of_road: the script runs against older trees too
     nets = {"straight": HighwayNet(), "merge": HighwayNet(ramp_at=1000.0), "exit": HighwayNet(exit_at=1000.0)}
     cells = list(itertools.product(("Krauss", "IDM", "EIDM"), (False, True)))
     out = {}

@@ -62,12 +62,11 @@ def far_enough(S) -> float:
     changing an answer. ``inf`` for any other set (nothing skipped)."""
     if type(S) is not MaximalSet:
         return float("inf")
-    p = S.params
-    cache = S.__dict__.setdefault("_far_enough", {})
-    if p not in cache:
+    if "_far_enough" not in S.__dict__:
+        p = S.params
         least = _floor(p, p.v_max, 0.0, 0.0)   # the scalar kernel ITHA's checks load anyway
-        cache[p] = p.h_min + INNER - least + FAR_SLACK
-    return cache[p]
+        S._far_enough = p.h_min + INNER - least + FAR_SLACK
+    return S._far_enough
 
 
 class EgoSupervisor:

@@ -112,8 +112,7 @@ def _cells(args) -> list:
     from guardian.evaluation.sumo_setting import SumoSetting
 
     def setting(traffic: str, sublane: bool):
-        at = {"straight": {}, "merge": {"ramp_at": args.length / 3}, "exit": {"exit_at": args.length / 3}}[args.road]
-        return SumoSetting(net=HighwayNet(lanes=args.lanes, length=args.length, **at), seconds=args.seconds,
+        return SumoSetting(net=HighwayNet.of_road(args.road, lanes=args.lanes, length=args.length), seconds=args.seconds,
                            warmup=args.warmup, guarded=args.guarded, connection=args.connection, start=args.start,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))

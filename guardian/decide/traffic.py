@@ -77,6 +77,7 @@ class TrafficSupervisor:
         self.S_others = self.S if others is None else MaximalSet(self.others)
         self.overapprox = overapprox
         self.wreck_margin = float(wreck_margin)
+        self.far = far_enough(self.S_others)   # a car this far behind the one it follows needs no verdict of it
         self._risk = (None, {})   # (the scene's cars, {id(car): why it is at risk}) for the last scene
 
     def _speed_range(self) -> list:
@@ -150,7 +151,7 @@ class TrafficSupervisor:
             return f"{name} has crashed"
         if not 0 <= car.speed <= p.v_max:
             return f"{name} drives at {car.speed:.2f} m/s, outside the traffic model's [0, {p.v_max:g}] m/s"
-        far = far_enough(self.S_others)
+        far = self.far
         for lane in sorted(car.lanes):
             for lead in scene.leads_of(car, lane):
                 if _gap(car, lead) >= far and _gap_after_step(p, car, lead) - self.wreck_margin >= far \

@@ -73,6 +73,13 @@ class HighwayNet:
         if self.ramp_offset < 0:
             raise ConfigError(f"ramp_offset must be >= 0, got {self.ramp_offset}")
 
+    @classmethod
+    def of_road(cls, road: str, **kw) -> HighwayNet:
+        """The ``straight`` highway, or one with an on-ramp (``merge``) or an exit (``exit``) a third of the way along."""
+        length = kw.get("length", cls.length)
+        at = {"straight": {}, "merge": {"ramp_at": length / 3}, "exit": {"exit_at": length / 3}}[road]
+        return cls(**kw, **at)
+
     @property
     def corridor(self) -> tuple:
         """The edges along ``+x``, in order (every one's lanes aligned on the left)."""
