@@ -155,3 +155,39 @@ def rss_violations(rho, accel, brake_min, brake_max, v, h, v_lead):
             d = v[i] * rho + offset + (v[i] + rho * accel) ** 2 / (2 * brake_min) - v_lead[i] ** 2 / (2 * brake_max)
             out[i] = h[i] < max(d, 0.0)
     return out
+
+
+@njit(cache=True)
+def floor_rate_limited(fall, u_min, lead_step, dt, v_max, v, h, vL, a):
+    """``min_t Φ_t`` of (7.3) for an ego whose acceleration changes by at most ``fall`` (= jerk dt) a step:
+    from acceleration ``a`` it falls by ``fall`` a step down to ``u_min``, the speed stopping at 0; the lead's
+    speed falls by ``lead_step`` a step down to 0. Stepped until both stand for good (the ego stands, its
+    acceleration not positive: it only falls from there). ``-inf`` when even this braking takes the ego's speed
+    above ``v_max`` (an acceleration that cannot fall in time overshoots the top speed)."""
+    best = h
+    phi = h
+    if v > v_max:
+        return -math.inf
+    while v > 0.0 or vL > 0.0 or a > 0.0:
+        phi += dt * (vL - v)
+        if phi < best:
+            best = phi
+        a = max(a - fall, u_min)
+        v = max(v + dt * a, 0.0)
+        if v > v_max:
+            return -math.inf
+        vL = max(vL - lead_step, 0.0)
+    return best
+
+
+@njit(cache=True)
+def highest_safe_command(fall, u_min, lead_step, dt, v_max, v, h, vL, lo, hi, threshold, iterations):
+    """Bisection on ``[lo, hi]`` (``lo`` safe, ``hi`` not) of ``floor_rate_limited`` at the next state ``(max(v +
+    dt c, 0), h, vL, c)`` ``>= threshold``, which falls with the command ``c``: the last safe command."""
+    for _ in range(iterations):
+        mid = (lo + hi) / 2
+        if floor_rate_limited(fall, u_min, lead_step, dt, v_max, max(v + dt * mid, 0.0), h, vL, mid) >= threshold:
+            lo = mid
+        else:
+            hi = mid
+    return lo

@@ -39,7 +39,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from itha.car_following import INNER, CarFollowingParams
+from itha import _kernels
+from itha.car_following import INNER, SPEED_BISECTIONS, CarFollowingParams
 
 BISECTIONS = 60
 INF = math.inf
@@ -281,3 +282,102 @@ class ActuatedSet:
             mid = 0.5 * (good + bad)
             good, bad = (mid, bad) if self.keeps(x, mid, threshold) else (good, mid)
         return [(lo, good)]
+
+
+# ---- the same on (7.3)'s Euler step --------------------------------------------------------------------
+class RateLimitedSet:
+    """The maximal RCIS of (7.3), Euler step and all, for an ego whose acceleration changes by at most
+    ``jerk dt`` from one step to the next (and whose speed must stay within ``v_max`` while it brakes): the world of
+    a simulator that moves its cars by Euler steps
+    (highway-env) with a rate-limited actuator (``envs.actuator.JerkLimit``).
+
+    State ``(v, h, v_L, a)``, ``a`` the acceleration applied over the last step. A command ``c`` in
+    ``reach(a) = [a - jerk dt, a + jerk dt] ∩ U`` gives ``v+ = max(v + dt c, 0)`` (the ego stops, never
+    reverses), ``h+ = h + dt (v_L - v)``, ``v_L+ = max(v_L + dt d, 0)``, ``a+ = c``. The set is
+    ``{floor >= h_min}`` with ``floor`` the least step-end gap while the ego's commands fall by ``jerk dt`` a
+    step down to ``u_min`` and the lead brakes at ``d_min`` (``_kernels.floor_rate_limited``); the argument is
+    ``ActuatedSet``'s (every admissible command sequence keeps the ego's acceleration, speed and position at
+    least these, every lead at least as far as the one braking hardest). The next gap does not depend on the
+    command, so the set bound to the ego's speed and acceleration now (``bound``) answers ``(7.4)`` in next
+    speeds, as ``MaximalSet.speed_intervals`` does, and the traffic rules take it unchanged. ``jerk = inf`` is
+    (7.3) itself (tested against ``MaximalSet``).
+    """
+
+    kind = "rate-limited"
+
+    def __init__(self, params: CarFollowingParams, actuator: Actuator):
+        if params.exact or params.has_drag:
+            raise ValueError("RateLimitedSet is (7.3)'s Euler step without drag; for exact integration use "
+                             "ActuatedSet")
+        if actuator.delay:
+            raise ValueError("RateLimitedSet has no reaction delay: a delayed actuator's set is ActuatedSet "
+                             "(exact integration)")
+        if actuator.profile != "hold":
+            raise ValueError("over an Euler step the acceleration is held: declare Actuator(profile=\"hold\")")
+        self.params, self.actuator = params, actuator
+        self.fall = actuator.jerk * params.dt
+
+    def reach(self, a: float) -> tuple[float, float]:
+        """The commands the actuator can follow from acceleration ``a``."""
+        p = self.params
+        return max(p.u_min, a - self.fall), min(p.u_max, a + self.fall)
+
+    def floor(self, x) -> float:
+        v, h, vL, a = (float(c) for c in x)
+        p = self.params
+        return _kernels.floor_rate_limited(self.fall, p.u_min, p.lead_step, p.dt, p.v_max, v, h, vL, a)
+
+    def contains(self, x) -> bool:
+        v, h, vL, a = (float(c) for c in x)
+        p = self.params
+        if not (0 <= v <= p.v_max and p.u_min <= a <= p.u_max):
+            return False
+        if h == INF:      # no car ahead: only the top speed binds
+            vL = 0.0
+        elif not 0 <= vL <= p.v_max:
+            return False
+        return self.floor((v, h, vL, a)) >= p.h_min - INNER   # rounding allowed (INNER)
+
+    def bound(self, v: float, a: float) -> "RateLimitedEgo":
+        """The set seen from an ego at speed ``v`` with acceleration ``a`` now."""
+        return RateLimitedEgo(self, float(v), float(a))
+
+
+class RateLimitedEgo:
+    """``RateLimitedSet`` bound to the ego's speed and acceleration now: ``speed_intervals(h+, v_L+)`` are the
+    next speeds the actuator reaches that keep ``(v+, h+, v_L+, a+)`` in the set (``a+`` the command that gives
+    ``v+``; every command that stops the ego is as good as another), as ``MaximalSet.speed_intervals`` gives them
+    for (7.3). With an infinite gap (no car ahead) only the top speed binds."""
+
+    kind = "rate-limited"
+
+    def __init__(self, S: RateLimitedSet, v: float, a: float):
+        self.S, self.v, self.a = S, v, a
+        self.params = S.params
+        self.commands = S.reach(a)
+
+    def next_speed(self, command: float) -> float:
+        return max(self.v + self.params.dt * command, 0.0)
+
+    def _safe(self, command: float, h: float, vL: float) -> bool:
+        p = self.params
+        return _kernels.floor_rate_limited(self.S.fall, p.u_min, p.lead_step, p.dt, p.v_max, self.next_speed(command),
+                                           h, vL, command) >= p.h_min + INNER
+
+    def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
+        p = self.params
+        lo, hi = self.commands
+        if lo > hi:
+            return []
+        top = hi
+        if h == INF:       # no car ahead: only the top speed binds
+            vL = 0.0
+        elif not 0 <= vL <= p.v_max:
+            return []
+        if not self._safe(lo, h, vL):
+            return []
+        if not self._safe(hi, h, vL):
+            top = _kernels.highest_safe_command(self.S.fall, p.u_min, p.lead_step, p.dt, p.v_max, self.v, h, vL,
+                                                lo, hi, p.h_min + INNER, SPEED_BISECTIONS)
+        low, high = self.next_speed(lo), min(self.next_speed(top), p.v_max)
+        return [(low, high)] if low <= high else []

@@ -1,7 +1,7 @@
 """``guardian falsify``: the falsification campaign (``guardian.evaluation.campaign``) and its table."""
 from __future__ import annotations
 
-from guardian.cli.common import count, emit, progress_bar, usage_error
+from guardian.cli.common import count, emit, positive_number, progress_bar, usage_error
 
 DEFAULT_WORKERS = 2
 
@@ -13,7 +13,8 @@ COLUMNS = (("episodes", "episodes"), ("steps", "steps"), ("collisions", "collisi
            ("override_steps", "override steps"), ("conflict_steps", "conflict steps"),
            ("unchecked_entries", "unchecked entries"), ("reversing_steps", "reversing steps"),
            ("unsupervised_steps", "unsupervised"), ("traffic_reversing_uncovered_steps", "uncovered reversals"),
-           ("episodes_cut", "cut at the time cap"), ("exceptions", "exceptions"))
+           ("episodes_cut", "cut at the time cap"), ("actuator_clipped_steps", "actuator clips"),
+           ("exceptions", "exceptions"))
 
 
 def table(rows: list, title: str) -> str:
@@ -31,10 +32,12 @@ def _said(failure: dict) -> str:
 
 def promise_broken(result: dict) -> bool:
     """Whether a guarded campaign found a failure of the promise: a collision at a guarded car's fault
-    after a start inside, an unchecked entry, a reversing or unsupervised step, an exception, or a
+    after a start inside, an unchecked entry, a reversing or unsupervised step, a command the actuator could not
+    follow, an exception, or a
     HighwayOvertake exit from the safe set after a start inside."""
     totals = result["totals"]
-    counts = ("ego_at_fault_collisions", "exceptions", "unchecked_entries", "reversing_steps", "unsupervised_steps")
+    counts = ("ego_at_fault_collisions", "exceptions", "unchecked_entries", "reversing_steps", "unsupervised_steps",
+              "actuator_clipped_steps")
     return any(totals.get(k, 0) for k in counts) or any(f["kind"] == "safe-set exit" for f in result["failures"])
 
 
@@ -45,7 +48,9 @@ def cmd_falsify(args) -> int:
     if args.scheduler and args.workers is not None:
         return usage_error(args, "--workers does not apply with --scheduler (the Dask cluster has its own workers)")
     workers = None if args.scheduler else DEFAULT_WORKERS if args.workers is None else args.workers
-    cells = matrix(guardian=not args.no_guardian, only=args.only)
+    if args.jerk is not None and args.only not in ("highway", "roads"):
+        return usage_error(args, "--jerk applies to highway-env's roads: add --only highway or --only roads")
+    cells = matrix(guardian=not args.no_guardian, only=args.only, jerk=args.jerk)
     if args.agent:
         cells = [c for c in cells if c.agent in args.agent]
         if not cells:
@@ -101,6 +106,9 @@ def add_commands(sub) -> None:
                    help="only the cells of this agent (repeatable); the choices are the agents the campaign's "
                         "cells drive")
     p.add_argument("--no-guardian", action="store_true", help="the same matrix without the guardian")
+    p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
+                   help="the controlled cars' actuator changes their acceleration by at most J m/s^3 (with --only "
+                        "highway or roads)")
     p.add_argument("--workers", type=count(1), default=None, help=f"local processes (default {DEFAULT_WORKERS})")
     p.add_argument("--scheduler", default=None,
                    help="the address of an existing Dask scheduler (tcp://host:8786) to run on instead of local "

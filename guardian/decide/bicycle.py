@@ -21,6 +21,11 @@ steering]``, and returns the input to apply and a ``Decision``.
   judged as an entry (7.5) the moment it is touched and, when that is not responsible, is a lane the
   steering must not enter further (no path may overlap it) until the body is clear of it.
 * Fail-safe: the hardest braking down to standstill (never reversing), steering straight.
+* An actuator that limits the acceleration's change (``Actuator(jerk, profile="hold")``, declared by the world:
+  ``envs.actuator.JerkLimit``): the ego's own set is ``itha.actuator.RateLimitedSet`` bound to its speed and
+  acceleration now, the accelerations are those the actuator reaches (``[a - jerk dt, a + jerk dt] ∩ U``, the
+  speed stopping at 0), and the fail-safe brakes as hard as the actuator allows. A proposal beyond the reach is
+  a clip to the model (the actuator could not follow it either), not a safety override.
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ from guardian.decide.traffic import TrafficSupervisor
 from guardian.model.decision import Decision, Entry
 from guardian.model.lanes import LaneNumbering
 from guardian.model.scene import EgoState, Scene
+from itha.actuator import RateLimitedSet
 from itha.car_following import CarFollowingParams
 from rcis.intervals import intersect_intervals, nearest_in_intervals
 
@@ -45,13 +51,19 @@ class BicycleGuardian:
     config : guardian.config.GuardianConfig
     meta : bool
         The agent gives meta actions (the vehicle's controller steers).
+    actuator : itha.actuator.Actuator, optional
+        The ego's actuator, when it limits how fast the acceleration changes (see the module docstring).
     """
 
-    def __init__(self, kin: BicycleEgo, config, meta: bool):
+    def __init__(self, kin: BicycleEgo, config, meta: bool, actuator=None):
         c = config
         cf = CarFollowingParams(dt=kin.dt, v_max=c.v_max, h_min=c.h_min, u_min=-c.traffic_accel,
                                 u_max=c.traffic_accel, d_min=-c.traffic_accel, d_max=c.traffic_accel)
-        self.traffic = TrafficSupervisor(cf, None, c.overapprox, c.wreck_margin)
+        self.plain = TrafficSupervisor(cf, None, c.overapprox, c.wreck_margin)
+        self.traffic = self.plain   # bound to the ego's state at each decision when an actuator is declared
+        self.actuator = actuator
+        self.ego_set = None if actuator is None else RateLimitedSet(cf, actuator)
+        self.reach = None           # the accelerations the actuator reaches now (None: ±traffic_accel)
         self.kin, self.config, self.meta = kin, config, meta
         self.lanes = LaneNumbering(kin.n_lanes)   # the kinematics' slots, the scene's and decisions' ITHA lanes
         self.reset()
@@ -61,17 +73,28 @@ class BicycleGuardian:
         self.held = None          # slots the body may overlap: the start's, home, responsible entries
         self.authorized = set()   # slots being entered after a responsible entry
 
+    def _bind(self, ego: EgoState) -> None:
+        """The ego's own set and reach for this decision (an actuated ego's depend on its state now)."""
+        if self.ego_set is not None:
+            bound = self.ego_set.bound(ego.speed, ego.acceleration)
+            self.traffic, self.reach = self.plain.with_ego_set(bound), bound.commands
+
+    def _accels(self, ego: EgoState, speeds) -> list:
+        return self.kin.accel_for_speeds(ego.speed, speeds, self.reach)
+
     def inside(self, ego: EgoState, scene: Scene) -> bool:
         """Is ``ego`` inside its invariant set: some acceleration self-safe (7.4) towards the cars ahead in
         every lane its body overlaps?"""
+        self._bind(ego)
         lanes = self.lanes.itha_set(set(self.kin.body_lanes(ego)) or {ego.lane})
         speeds, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes(lanes))
-        return bool(self.kin.accel_for_speeds(ego.speed, speeds))
+        return bool(self._accels(ego, speeds))
 
     # ---- policy level (meta agents) ------------------------------------------------------------------
     def policy_lane_change(self, ego: EgoState, scene: Scene, target: int) -> tuple[bool, str]:
         """Is a meta agent's lane change from ``ego.lane`` to ``target`` ρ̂-responsible now (7.5), with an
         acceleration that also keeps self-safety?"""
+        self._bind(ego)
         if ego.lane != ego.target_lane:
             return False, "a lane change is already under way"
         if not 0 <= target < self.kin.n_lanes:
@@ -89,7 +112,7 @@ class BicycleGuardian:
             return False, verdict.reason
         both = {home, lane}
         speeds, why = self.traffic.self_safe_speeds(scene.with_ego_lanes(both))
-        ok = bool(self.kin.accel_for_speeds(ego.speed, intersect_intervals(speeds, verdict.speeds)))
+        ok = bool(self._accels(ego, intersect_intervals(speeds, verdict.speeds)))
         return ok, "" if ok else (why or "no input reaches a responsible and self-safe speed")
 
     # ---- one simulation step -----------------------------------------------------------------------------
@@ -109,12 +132,13 @@ class BicycleGuardian:
         -------
         applied : ndarray
             ``[acceleration, steering]`` with the acceleration in ``[-a_max, a_max]`` and never below
-            ``-speed / dt`` (no reversing).
+            ``-speed / dt`` (no reversing); with an actuator, within its reach (the speed stops at 0).
         decision : Decision
             ``refused`` holds the target of a meta lane change to abandon.
         """
         a_prop, asked = (float(v) for v in proposed)
         kin = self.kin
+        self._bind(ego)
         d = Decision(proposed=[a_prop, asked], applied=[], changed="none")
         steer_prop = min(max(asked, -kin.max_steering), kin.max_steering)  # a client may ask beyond the bound
         if steer_prop != asked:
@@ -141,6 +165,10 @@ class BicycleGuardian:
             a = nearest_in_intervals(accel, a_prop)
             if abs(a - a_prop) > 1e-9:
                 self._explain(ego, a_prop, a, limits, d)
+        elif self.reach is not None:
+            a = self.reach[0]   # the hardest braking the actuator allows; the speed stops at 0
+            d.level, d.changed = "failsafe", "failsafe"
+            d.note("failsafe: no self-safe acceleration; braking as hard as the actuator allows, down to standstill")
         else:
             bound = self.config.traffic_accel  # a reversing ego (speed < 0) is stopped no harder than the bound
             a = min(max(-bound, -ego.speed / kin.dt), bound)
@@ -198,7 +226,7 @@ class BicycleGuardian:
         if verdict.responsible:
             safe, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes(self.lanes.itha_set(now) | {lane}))
             speeds = intersect_intervals(speeds, safe)
-        ok = verdict.responsible and bool(self.kin.accel_for_speeds(ego.speed, speeds))
+        ok = verdict.responsible and bool(self._accels(ego, speeds))
         reason = verdict.reason or ("" if ok else "no acceleration reaches a responsible, self-safe speed")
         d.entries.append(Entry(lane, ok, reason))
         if not ok:
@@ -323,14 +351,14 @@ class BicycleGuardian:
         for lane in sorted(itha - {self.lanes.itha(self.home)}):
             fs, why = self.traffic.follower_speeds(ego_scene, lane, ego_progress_min=progress)
             kept = intersect_intervals(speeds, fs)
-            if kin.accel_for_speeds(ego.speed, kept):
+            if self._accels(ego, kept):
                 speeds = kept
                 limits.append((f"keeping the follower in lane {lane} safe while entering it", fs))
             else:
                 d.level = "follower_dropped"
                 d.note(why)
                 d.note("responsibility for a follower not kept (it was responsible when the entry began)")
-        return kin.accel_for_speeds(ego.speed, speeds), limits
+        return self._accels(ego, speeds), limits
 
     def _risk_note(self, scene: Scene, car) -> str:
         risk = self.traffic.at_risk(scene, car)
@@ -347,6 +375,13 @@ class BicycleGuardian:
             d.clipped_to_model = True
             d.note(f"acceleration clipped to the model's bound ±{self.kin.accel:g} m/s^2")
             return
+        if self.reach is not None:
+            lo, hi = self.reach
+            if (a_prop > hi and a >= hi - 1e-8) or (a_prop < lo and a <= lo + 1e-8):   # speeds' rounding aside
+                d.clipped_to_model = True
+                d.note(f"acceleration clipped to what the actuator reaches from {ego.acceleration:.2f} m/s^2: "
+                       f"[{lo:.2f}, {hi:.2f}] (jerk {self.actuator.jerk:g} m/s^3)")
+                return
         for name, speeds in limits:
             if not any(lo <= v_prop <= hi for lo, hi in speeds):
                 bound = max((hi for lo, hi in speeds if hi < v_prop), default=None)

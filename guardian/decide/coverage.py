@@ -161,7 +161,8 @@ class ModelCoverage:
         x1, v1, _ = now["ego"]
         a = float(prev["applied"][0])
         progress = x1 - x0
-        speed_ok = abs(v1 - v0 - self.dt * a) <= TOL
+        speed_ok = abs(v1 - v0 - self.dt * a) <= TOL or (self.ego_stops_at_zero and v1 == 0.0
+                                                          and v0 + self.dt * a <= TOL)
         progress_ok = self.ego_kin.min_progress(v0, heading) - TOL <= progress <= self.dt * v0 + TOL
         return speed_ok and progress_ok
 

@@ -145,11 +145,14 @@ class BicycleEgo:
         self.lane_width, self.n_lanes = lane_width, n_lanes
         self.max_steering = max_steering
 
-    def accel_for_speeds(self, v: float, speeds) -> list:
+    def accel_for_speeds(self, v: float, speeds, bounds: tuple | None = None) -> list:
+        """Accelerations giving a next speed in ``speeds``, within ``bounds`` (default ``±accel``). With
+        ``bounds`` (an actuator's reach) the speed stops at 0: every acceleration that stops the car reaches 0."""
+        lower, upper = (-self.accel, self.accel) if bounds is None else bounds
         out = []
         for lo, hi in speeds:
-            a_lo = max((lo - v) / self.dt + ROUNDING, -self.accel)
-            a_hi = min((hi - v) / self.dt - ROUNDING, self.accel)
+            a_lo = lower if bounds is not None and lo <= 0.0 else max((lo - v) / self.dt + ROUNDING, lower)
+            a_hi = min((hi - v) / self.dt - ROUNDING, upper)
             if a_lo <= a_hi:
                 out.append((a_lo, a_hi))
         return out

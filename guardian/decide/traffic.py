@@ -33,6 +33,8 @@ the traffic model violation it is.
 """
 from __future__ import annotations
 
+import copy
+import math
 from dataclasses import dataclass
 
 from guardian.model.scene import Car, Scene  # noqa: F401 (the scene the decisions read)
@@ -80,8 +82,18 @@ class TrafficSupervisor:
         self.far = far_enough(self.S_others)   # a car this far behind the one it follows needs no verdict of it
         self._risk = (None, {})   # (the scene's cars, {id(car): why it is at risk}) for the last scene
 
+    def with_ego_set(self, S) -> "TrafficSupervisor":
+        """This supervisor with the ego's own set replaced by ``S`` (anything answering ``speed_intervals(h+,
+        v_L+)`` in next ego speeds: an actuated ego's set bound to its state now,
+        ``itha.actuator.RateLimitedSet.bound``); the traffic's set and its verdicts are shared."""
+        out = copy.copy(self)
+        out.S = S
+        return out
+
     def _speed_range(self) -> list:
-        return [(0.0, self.params.v_max)]
+        """The ego's next speeds with no car ahead: ``[0, v_max]`` for (7.3); an actuated ego's set narrows them to
+        what it reaches and can still hold below ``v_max``."""
+        return self.S.speed_intervals(math.inf, self.params.v_max)
 
     def self_safe_speeds(self, scene: Scene) -> tuple[list, str]:
         """Next ego speeds that are self-safe (7.4) against the nearest car ahead in each occupied lane."""

@@ -67,7 +67,7 @@ MULTI_AGENTS = ("random", "reckless", "merge")
 COUNTED = ("collisions", "ego_at_fault_collisions", "starts_outside", "collisions_after_outside_starts",
            "ego_at_fault_after_outside_starts", "safety_violations", "failsafe_steps", "conflict_steps",
            "unchecked_entries", "reversing_steps", "unsupervised_steps", "traffic_reversing_uncovered_steps",
-           "override_steps", "steps", "episodes_cut")
+           "override_steps", "steps", "episodes_cut", "actuator_clipped_steps")
 
 
 @dataclass(frozen=True)
@@ -85,6 +85,7 @@ class Cell:
     guardian: bool = True
     controlled: int | None = None   # several controlled cars (MultiAgentAction)
     overapprox: str = "trivial"
+    jerk: float | None = None       # the controlled cars' actuator's jerk bound (envs.actuator.JerkLimit)
 
     @property
     def config(self) -> dict:
@@ -101,6 +102,8 @@ class Cell:
             out["controlled"] = self.controlled
         if self.overapprox != "trivial":
             out["overapprox"] = self.overapprox
+        if self.jerk is not None:
+            out["jerk"] = self.jerk
         if not self.guardian:
             out["no_guardian"] = True
         out.update({"episodes": 1, "seed": seed})
@@ -111,7 +114,7 @@ class Cell:
         return Rollout(self.env, self.agent, action=self.action, guarded=self.guardian,
                        config=GuardianConfig(overapprox=self.overapprox), library=library, intention=self.intention,
                        disturbance=self.disturbance, traffic=self.traffic, controlled=self.controlled,
-                       env_config=self.config)
+                       env_config=self.config, jerk=self.jerk)
 
 
 def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
@@ -119,8 +122,15 @@ def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
                 guardian=guardian, **kw)
 
 
-def matrix(guardian: bool = True, only: str | None = None) -> list[Cell]:
-    """The campaign's cells (``only``: ``overtake``, ``highway`` or ``roads``; by default the first two)."""
+def matrix(guardian: bool = True, only: str | None = None, jerk: float | None = None) -> list[Cell]:
+    """The campaign's cells (``only``: ``overtake``, ``highway`` or ``roads``; by default the first two); ``jerk``:
+    the controlled cars behind an actuator with that jerk bound (highway-env's roads only)."""
+    if jerk is not None:
+        if only not in ("highway", "roads"):
+            raise ValueError("a jerk limit applies to highway-env's roads: choose only='highway' or 'roads'")
+        import dataclasses
+
+        return [dataclasses.replace(c, jerk=float(jerk)) for c in matrix(guardian, only)]
     cells = []
     if only == "roads":
         for env, actions, config in ROADS:
@@ -211,7 +221,7 @@ class Campaign:
                 self.failures.append({"kind": "at-fault collision" if crash["start_inside"] and blamed
                                       else "collision after a start outside", "fault": crash["fault"],
                                       "rule": crash["rule"], "cell": cell.setting, "replay": cell.replay(seed)})
-        for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps", "episodes_cut"):
+        for k in ("unchecked_entries", "reversing_steps", "unsupervised_steps", "episodes_cut", "actuator_clipped_steps"):
             if r.get(k):
                 self.failures.append({"kind": k, "count": r[k], "cell": cell.setting, "replay": cell.replay(seed)})
         if cell.env == OVERTAKE_ENV and r.get("safety_violations"):

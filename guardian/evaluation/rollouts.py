@@ -58,6 +58,10 @@ class Rollout:
         An episode the env has not ended by this simulated time is stopped and counted as cut
         (``episodes_cut``): ``merge-v0`` never ends an episode itself (its config's ``duration`` is not used).
         None: no cap.
+    jerk : float, optional
+        The controlled cars' actuator limits the change of their acceleration to this many m/s^3
+        (``envs.actuator.JerkLimit``, guarded or not; highway-env's roads only). None: highway-env's vehicles,
+        whose acceleration may jump.
     """
 
     env_id: str
@@ -73,6 +77,7 @@ class Rollout:
     env_config: dict = field(default_factory=dict)
     policy_algo: str | None = None
     max_seconds: float | None = MAX_SECONDS
+    jerk: float | None = None
 
     @property
     def overtake(self) -> bool:
@@ -160,6 +165,10 @@ def make_env(r: Rollout, render: bool = False):
                           f"({type(exc).__name__}: {exc})") from exc
     if render:  # highway-env's default ratio (2) makes videos play at double speed
         env.unwrapped.update_metadata(video_real_time_ratio=1)
+    if r.jerk is not None:
+        from envs.actuator import JerkLimit
+
+        env = JerkLimit(env, r.jerk)
     return Guardian(env, r.library, r.config) if r.guarded else env
 
 

@@ -15,6 +15,7 @@ from guardian.evaluation.judge import FaultJudge, body_lanes
 from guardian.model.roads import RoadMap
 from intention.estimator import IntentionEstimator
 from intention.models import intention_models, unclip_standstill
+from itha.actuator import RateLimitedSet
 from itha.car_following import CarFollowingParams
 
 COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
@@ -24,7 +25,7 @@ COUNTS = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_
           "traffic_reversing_uncovered_steps", "follower_dropped_steps",
           "conflict_steps",
           "failsafe_steps", "unchecked_entries", "reversing_steps", "unsupervised_steps", "reattachments",
-          "episodes_cut")
+          "episodes_cut", "actuator_clipped_steps")
 MULTI_COUNTS = ("guarded_pair_collisions", "merges", "on_ending_lane")
 CAR_COUNTS = ("collisions", "at_fault_collisions", "lane_changes", "override_steps", "refused_lane_changes",
               "merges", "on_ending_lane")
@@ -64,6 +65,7 @@ class HighwayTally(Observer):
         self.identify, self.distance, self.monitor_worst = [], 0.0, {}
         self.per_car = None          # per controlled car (several): CAR_COUNTS and distance
         self.multi = False
+        self.actuated = False        # the world fits an actuator (envs.actuator.JerkLimit): its clips are counted
 
     def _watch_the_lead(self, env) -> None:
         models = intention_models(env.unwrapped.params)
@@ -136,6 +138,9 @@ class HighwayTally(Observer):
         g = info.get("guardian")
         records = (g["agents"] if self.multi else [g]) if g else [None] * len(self.cars)
         totals["steps"] += 1
+        if "actuator" in info:
+            self.actuated = True
+            totals["actuator_clipped_steps"] += info["actuator"]["clipped_steps"]
         for i, (v, r) in enumerate(zip(self.cars, records)):
             changed = int(self._slot(v) != self.lanes_before[i])
             totals["lane_changes"] += changed
@@ -279,6 +284,9 @@ class HighwayTally(Observer):
           and guarded car. With several guarded cars every per-step count is summed over the cars.
         * On roads beyond one straight segment: ``on_ending_lane``: guarded cars that began an episode on a
           lane that ends (an on-ramp's); ``merges``: those of them on a lane that goes on at the episode's end.
+        * ``actuator_clipped_steps``: simulation steps in which a controlled car's actuator could not follow the
+          acceleration it was given (``envs.actuator.JerkLimit``; None without one). With the guardian it asks only
+          for what the actuator reaches: a nonzero count is a defect.
         * ``episodes_cut``: episodes the env had not ended (no crash, no time limit) when the rollout's time cap
           (``Rollout.max_seconds``) stopped them; ``cut_episodes`` lists them. What would have happened after
           the cap is not seen: a cut episode is never counted as safe, it is counted apart.
@@ -289,6 +297,8 @@ class HighwayTally(Observer):
         totals = self.totals
         totals["episodes"] = episodes
         totals["distance_mean"] = self.distance / episodes
+        if not self.actuated:
+            totals["actuator_clipped_steps"] = None
         if not self.guardian:  # measured only by the guardian's monitor (and, on HighwayOvertake, from the env)
             for k in ("traffic_model_violation_steps", "traffic_blind_steps", "traffic_reversing_uncovered_steps"):
                 totals[k] = None
@@ -320,11 +330,12 @@ class _SelfSafetyCheck:
         self.dt = 1.0 / base.config["simulation_frequency"]
         self.road, self.accel, self.reversing = road, c.traffic_accel, c.reversing
         self.car = base.vehicle if car is None else car
+        self.actuator = getattr(self.car, "actuator", None)
         self.guarded = frozenset(id(v) for v in controlled_vehicles(base)) if multi else frozenset()
-        self.traffic = TrafficSupervisor(CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min,
-                                                            u_min=-c.traffic_accel, u_max=c.traffic_accel,
-                                                            d_min=-c.traffic_accel, d_max=c.traffic_accel),
-                                         wreck_margin=c.wreck_margin)
+        params = CarFollowingParams(dt=self.dt, v_max=c.v_max, h_min=c.h_min, u_min=-c.traffic_accel,
+                                    u_max=c.traffic_accel, d_min=-c.traffic_accel, d_max=c.traffic_accel)
+        self.traffic = TrafficSupervisor(params, wreck_margin=c.wreck_margin)
+        self.ego_set = None if self.actuator is None else RateLimitedSet(params, self.actuator)
 
     def inside(self, base) -> bool:
         ego = self.car
@@ -335,8 +346,13 @@ class _SelfSafetyCheck:
             lanes = body_lanes(ego, self.road.lane_width, self.road.n_lanes) or {ego.lane_index[2]}
         scene = road_scene(base, self.road, self.road.numbering.itha_set(lanes), ego=ego, guarded=self.guarded,
                            reversing=self.reversing)
+        v = float(ego.speed)
+        if self.ego_set is not None:   # the speeds the actuator reaches, the set bound to the car's state
+            bound = self.ego_set.bound(v, float(ego.applied_acceleration))
+            speeds, _ = self.traffic.with_ego_set(bound).self_safe_speeds(scene)
+            return bool(speeds)
         speeds, _ = self.traffic.self_safe_speeds(scene)
-        v, reach = float(ego.speed), self.accel * self.dt
+        reach = self.accel * self.dt
         return any(max(lo, v - reach) <= min(hi, v + reach) for lo, hi in speeds)
 
 

@@ -128,3 +128,4 @@ class EgoState:
     lane: int               # highway-env lane id of the lane it is closest to
     target_lane: int        # the lane its controller steers to (meta agents); ``lane`` otherwise
     x: float = 0.0          # world position of the centre [m] (read on a RoadMap only)
+    acceleration: float = 0.0  # [m/s^2] applied over the last step (read where an actuator limits its change)

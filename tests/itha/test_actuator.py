@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from itha.actuator import Actuator, ActuatedSet, least_gap, motion
+from itha.actuator import Actuator, ActuatedSet, RateLimitedSet, least_gap, motion
 from itha.car_following import CarFollowingParams, MaximalSet, admissible_inputs, headway_floor
 
 FINE = 1e-4
@@ -169,3 +169,85 @@ def test_a_lead_braking_at_once_meets_the_unaware_guardian_and_never_the_actuate
     assert unaware["contacts"] > 0
     assert actuated["contacts"] == 0 and actuated["floor_deficits"] == 0
     assert actuated["steps_without_admissible_command"] == 0
+
+
+# ---- the rate-limited set on (7.3)'s Euler step (itha.actuator.RateLimitedSet) ------------------------------
+HE = CarFollowingParams(dt=1 / 15, v_max=30.0, h_min=5.0, u_min=-5.0, u_max=5.0, d_min=-5.0, d_max=5.0)
+
+
+def euler_step(x, command, lead_accel, p=HE):
+    """The world of ``envs.actuator.JerkLimit``: highway-env's Euler step, the speed stopping at 0."""
+    v, h, vL, _ = x
+    return (max(v + p.dt * command, 0.0), h + p.dt * (vL - v), min(max(vL + p.dt * lead_accel, 0.0), p.v_max), command)
+
+
+def random_state(rng, p=HE):
+    return (rng.uniform(0, p.v_max), rng.uniform(p.h_min, 90.0), rng.uniform(0, p.v_max), rng.uniform(p.u_min, p.u_max))
+
+
+def test_rate_limited_without_a_jerk_bound_is_the_closed_form():
+    S, M = RateLimitedSet(HE, Actuator(jerk=math.inf, profile="hold")), MaximalSet(HE)
+    rng = np.random.default_rng(1)
+    for _ in range(4000):
+        v, h, vL, a = random_state(rng)
+        h = rng.uniform(-5, 120)
+        assert S.contains((v, h, vL, a)) == M.contains([[v, h, vL]])[0]
+
+
+@pytest.mark.parametrize("jerk", [10.0, 5.0, 2.0])
+def test_rate_limited_set_is_invariant_under_its_admissible_commands(jerk):
+    """A falsifier: from states inside, any command the bound set admits (and the hardest braking) keeps the
+    next state inside whatever the lead does within D, and the gap above h_min, for 60 steps."""
+    S = RateLimitedSet(HE, Actuator(jerk=jerk, profile="hold"))
+    rng = np.random.default_rng(2)
+    runs = 0
+    while runs < 150:
+        x = random_state(rng)
+        if not S.contains(x):
+            continue
+        runs += 1
+        for _ in range(60):
+            v, h, vL, a = x
+            h_next, vL_worst = h + HE.dt * (vL - v), max(vL + HE.dt * HE.d_min, 0.0)
+            bound = S.bound(v, a)
+            speeds = bound.speed_intervals(h_next, vL_worst)
+            assert speeds, f"no admissible command from {x}, a state inside"
+            lo, hi = bound.commands
+            top = speeds[0][1]
+            c_hi = min(hi, (top - v) / HE.dt - 1e-9) if top > 0 else lo
+            command = rng.choice([lo, c_hi, rng.uniform(lo, max(lo, c_hi))])
+            assert lo <= command <= hi
+            x = euler_step(x, command, rng.choice([HE.d_min, HE.d_max, rng.uniform(HE.d_min, HE.d_max)]))
+            assert x[1] >= HE.h_min - 1e-9 and S.contains(x), f"left the set at {x}"
+
+
+@pytest.mark.parametrize("jerk", [10.0, 5.0])
+def test_outside_the_rate_limited_set_the_hardest_braking_lead_wins(jerk):
+    """Maximality: from a state outside (in the safe set), the lead braking at d_min brings the gap below h_min
+    whatever commands the actuator follows; the set that lets the acceleration jump keeps some of these states,
+    so it would be wrong here."""
+    S, M = RateLimitedSet(HE, Actuator(jerk=jerk, profile="hold")), MaximalSet(HE)
+    rng = np.random.default_rng(3)
+    seen = kept_by_jump = 0
+    while seen < 80:
+        x = random_state(rng)
+        if S.contains(x) or x[1] < HE.h_min:
+            continue
+        seen += 1
+        kept_by_jump += bool(M.contains([x[:3]])[0])
+        y = x
+        for _ in range(2000):   # the best the ego can do: brake as hard as the actuator allows
+            y = euler_step(y, S.reach(y[3])[0], HE.d_min)
+            if y[1] < HE.h_min:
+                break
+        assert y[1] < HE.h_min, f"{x} is outside, yet the hardest braking kept h >= h_min"
+    assert kept_by_jump > 0
+
+
+def test_rate_limited_set_refuses_what_it_does_not_model():
+    with pytest.raises(ValueError, match="exact"):
+        RateLimitedSet(CarFollowingParams(integration="exact"), Actuator(jerk=10, profile="hold"))
+    with pytest.raises(ValueError, match="delay"):
+        RateLimitedSet(HE, Actuator(jerk=10, delay=1, profile="hold"))
+    with pytest.raises(ValueError, match="hold"):
+        RateLimitedSet(HE, Actuator(jerk=10))

@@ -119,16 +119,18 @@ def _vehicle_reading(road: RoadMap, veh) -> tuple:
 
 def bicycle_state(vehicle, road=None) -> EgoState:
     """The bicycle state of ``vehicle``; on a ``RoadMap`` (``road``) lanes are slots and ``front`` is along
-    its lane's chain."""
+    its lane's chain. The acceleration is the one its actuator applied over the last step, where the world fits
+    one (``envs.actuator.JerkLimit``); 0 elsewhere (unread)."""
+    accel = float(vehicle.__dict__.get("applied_acceleration", 0.0))
     if isinstance(road, RoadMap):
         x, y = float(vehicle.position[0]), float(vehicle.position[1])
         lane = road.slot_of(vehicle.lane_index)
         target = road.slot_of(vehicle.target_lane_index) if isinstance(vehicle, ControlledVehicle) else lane
         return EgoState(road.longitudinal(vehicle.lane_index, x, y) + vehicle.LENGTH / 2, y, float(vehicle.heading),
-                        float(vehicle.speed), lane, target, x)
+                        float(vehicle.speed), lane, target, x, accel)
     target = vehicle.target_lane_index[2] if isinstance(vehicle, ControlledVehicle) else vehicle.lane_index[2]
     return EgoState(float(vehicle.position[0]) + vehicle.LENGTH / 2, float(vehicle.position[1]),
-                    float(vehicle.heading), float(vehicle.speed), vehicle.lane_index[2], target)
+                    float(vehicle.heading), float(vehicle.speed), vehicle.lane_index[2], target, 0.0, accel)
 
 
 @functools.lru_cache(maxsize=None)

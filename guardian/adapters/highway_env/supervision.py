@@ -138,6 +138,9 @@ class OvertakeSupervision(_Supervision):
         if type(base.action_type).__name__ == "MultiAgentAction":
             raise ConfigError("Guardian: the overtake scenarios have one ego; MultiAgentAction is for "
                               "highway-env's roads")
+        if getattr(base.vehicle, "actuator", None) is not None:
+            raise ConfigError("Guardian: the overtake sets let the ego's acceleration jump; an actuator with a jerk "
+                              "limit is supported on highway-env's roads")
         self.read(base)
         c, p = self.config, base.params
         traffic = int(base.config["traffic_count"]) > 0
@@ -207,6 +210,8 @@ class RoadSupervision(_Supervision):
                 action_type = action_type.agents_action_types[0]
             max_steer = float(max(abs(s) for s in action_type.steering_range))
 
+        actuator = getattr(ego, "actuator", None)   # declared by the world (envs.actuator.JerkLimit)
+
         def one(i: int):
             if isinstance(self.road, RoadMap):
                 kin = RoadMapEgo(self.dt, c.traffic_accel, ego.LENGTH, ego.WIDTH, self.road, max_steer)
@@ -214,10 +219,11 @@ class RoadSupervision(_Supervision):
                 kin = BicycleEgo(self.dt, c.traffic_accel, ego.LENGTH, ego.WIDTH, self.road.lane_width,
                                  self.road.n_lanes, max_steer)
             monitor = ModelMonitor(self.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, ego_kinematics=kin,
-                                   watch_traffic=i == 0, reversing=c.reversing)
-            return BicycleGuardian(kin, c, meta=kind == META), monitor
+                                   ego_stops_at_zero=actuator is not None, watch_traffic=i == 0,
+                                   reversing=c.reversing)
+            return BicycleGuardian(kin, c, meta=kind == META, actuator=actuator), monitor
 
-        key = (self.road, self.dt, kind, max_steer, ego.LENGTH, ego.WIDTH, cars)
+        key = (self.road, self.dt, kind, max_steer, ego.LENGTH, ego.WIDTH, cars, actuator)
         return self._built(key, lambda: [one(i) for i in range(cars)])  # one per car: nothing shared
 
     def starts_inside(self, base, cars: list) -> list:

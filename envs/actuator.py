@@ -1,0 +1,111 @@
+"""A world whose controlled cars cannot change their acceleration at once: highway-env's vehicles behind an
+actuator with a jerk limit.
+
+``JerkLimit(env, jerk)`` fits every controlled vehicle (highway-env's ``controlled_vehicles``) at each reset with
+``itha.actuator.Actuator(jerk, profile="hold")``: over each simulation step the vehicle applies the acceleration
+it was given, limited to within ``jerk * dt`` of the one it applied over the step before (starting from 0 at
+the reset), and its speed stops at 0 (it never reverses). Everything else is highway-env's ``Vehicle.step``.
+The vehicle declares the actuator (``vehicle.actuator``) and the acceleration it applied
+(``vehicle.applied_acceleration``); the ``Guardian`` reads both and asks only for accelerations the actuator
+reaches. A crashed car is braked by highway-env itself (``Vehicle.clip_actions``), not through the actuator.
+Every other simulation step whose command the actuator could not follow is counted
+(``info["actuator"]["clipped_steps"]`` per policy step): a guarded car's count is 0 by construction, and a
+nonzero one is a defect of the guardian.
+
+Wrap the world before the guardian: ``Guardian(JerkLimit(env, jerk))``.
+"""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+from highway_env.envs.common.abstract import AbstractEnv
+
+from guardian.errors import ConfigError
+from itha.actuator import Actuator
+
+
+class _LimitedStep:
+    """A vehicle's ``step`` behind the actuator (set on the vehicle, in front of its class's ``step``)."""
+
+    def __init__(self, world: "JerkLimit", vehicle):
+        self.world, self.vehicle = world, vehicle
+        self.original = type(vehicle).step.__get__(vehicle)
+
+    def __call__(self, dt: float) -> None:
+        v, fall = self.vehicle, self.world.actuator.jerk * dt
+        if v.crashed:   # highway-env brakes a crashed car itself (Vehicle.clip_actions): no actuator is modelled
+            self.original(dt)
+            v.applied_acceleration = float(v.action["acceleration"])
+            return
+        asked, last = float(v.action["acceleration"]), v.applied_acceleration
+        applied = min(max(asked, last - fall), last + fall)
+        if applied != asked:
+            self.world.clipped += 1
+        v.action["acceleration"] = applied
+        moving = v.speed >= 0.0
+        self.original(dt)
+        if moving and v.speed < 0.0:
+            v.speed = 0.0
+        v.applied_acceleration = float(v.action["acceleration"])
+        v.action["acceleration"] = asked   # the command stands as given (a plain Vehicle keeps it for the next step)
+
+
+class JerkLimit(gym.Wrapper):
+    """highway-env's roads with the controlled vehicles' acceleration rate-limited (see the module docstring).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A highway-env environment of the roads family (not the overtake scenarios, whose ego has its own
+        dynamics), not yet wrapped in a ``Guardian``.
+    jerk : float
+        The actuator's jerk bound [m/s^3], positive and finite.
+    """
+
+    def __init__(self, env: gym.Env, jerk: float):
+        super().__init__(env)
+        from envs.highway_overtake import HighwayOvertakeEnv
+        from guardian.wrappers.guardian import Guardian
+
+        base = env.unwrapped
+        if not isinstance(base, AbstractEnv):
+            raise ConfigError(f"JerkLimit: {type(base).__name__} is not a highway-env environment")
+        if isinstance(base, HighwayOvertakeEnv):
+            raise ConfigError("JerkLimit: the overtake scenarios' ego has its own dynamics and sets; a jerk limit is "
+                              "supported on highway-env's roads")
+        inner = env
+        while isinstance(inner, gym.Wrapper):
+            if isinstance(inner, Guardian):
+                raise ConfigError("JerkLimit: wrap the world before the guardian: Guardian(JerkLimit(env, jerk))")
+            inner = inner.env
+        if not (isinstance(jerk, (int, float)) and math.isfinite(jerk) and jerk > 0):
+            raise ConfigError(f"JerkLimit: the jerk bound must be a positive finite number [m/s^3], got {jerk!r}")
+        self.actuator = Actuator(jerk=float(jerk), profile="hold")
+        self.clipped = 0   # simulation steps whose command the actuator could not follow, since the last count
+
+    def _fit(self) -> None:
+        for vehicle in self.env.unwrapped.controlled_vehicles:
+            if vehicle.__dict__.get("actuator") is not self.actuator:
+                vehicle.actuator = self.actuator
+                vehicle.applied_acceleration = 0.0
+                vehicle.step = _LimitedStep(self, vehicle)
+
+    def _report(self) -> dict:
+        out = {"jerk": self.actuator.jerk, "clipped_steps": self.clipped}
+        self.clipped = 0
+        return out
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.clipped = 0
+        self._fit()
+        info["actuator"] = self._report()
+        return obs, info
+
+    def step(self, action):
+        self._fit()
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        info["actuator"] = self._report()
+        self._fit()
+        return obs, reward, terminated, truncated, info

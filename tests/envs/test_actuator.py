@@ -1,0 +1,61 @@
+"""The jerk-limited world (``envs.actuator.JerkLimit``) and the guardian in it: the actuator follows the rate
+limit, stops the car at 0 and counts what it could not follow; the guardian asks only for what it reaches and
+keeps its promise with the brake-checking and seeking drivers; what does not apply is refused."""
+import gymnasium as gym
+import highway_env  # noqa: F401
+import numpy as np
+import pytest
+
+import envs  # noqa: F401
+from envs.actuator import JerkLimit
+from guardian.errors import ConfigError
+from guardian.evaluation.rollouts import Rollout, highway_rollouts
+from guardian.wrappers.guardian import Guardian
+
+FAST = {"action": {"type": "ContinuousAction"}}
+
+
+def test_the_actuator_follows_the_rate_limit_counts_its_clips_and_never_reverses():
+    env = JerkLimit(gym.make("highway-fast-v0", config=dict(FAST, vehicles_count=0)), jerk=5.0)
+    obs, info = env.reset(seed=0)
+    ego = env.unwrapped.vehicle
+    dt = 1 / env.unwrapped.config["simulation_frequency"]
+    per_policy = env.unwrapped.config["simulation_frequency"] // env.unwrapped.config["policy_frequency"]
+    assert info["actuator"] == {"jerk": 5.0, "clipped_steps": 0}
+    speeds, accels = [ego.speed], [ego.applied_acceleration]
+    for k in range(40):
+        _, _, term, trunc, info = env.step(np.array([-1.0, 0.0]))   # full braking, asked at once
+        speeds.append(ego.speed)
+        accels.append(ego.applied_acceleration)
+        assert info["actuator"]["clipped_steps"] <= per_policy
+        if term or trunc:
+            break
+    steps = np.diff(accels)
+    assert np.all(np.abs(steps) <= 5.0 * dt * per_policy + 1e-9)
+    assert min(speeds) >= 0.0 and speeds[-1] == 0.0
+    assert accels[1] == pytest.approx(-5.0 * dt * per_policy)   # a ramp, not a jump
+
+
+@pytest.mark.parametrize("make,why", [
+    (lambda: JerkLimit(gym.make("guardian/Overtake-v0"), 5.0), "overtake"),
+    (lambda: JerkLimit(Guardian(gym.make("highway-fast-v0")), 5.0), "before the guardian"),
+    (lambda: JerkLimit(gym.make("highway-fast-v0"), 0.0), "positive finite"),
+    (lambda: JerkLimit(gym.make("highway-fast-v0"), float("inf")), "positive finite"),
+])
+def test_what_does_not_apply_is_refused(make, why):
+    with pytest.raises(ConfigError, match=why):
+        make()
+
+
+@pytest.mark.parametrize("agent,action", [("brake_check", "continuous"), ("seek", "meta")])
+def test_the_guarded_car_asks_only_for_what_the_actuator_reaches_and_causes_no_crash(agent, action):
+    r = highway_rollouts(Rollout("highway-fast-v0", agent, action=action, jerk=5.0), 4, seed=3)
+    assert r["actuator_clipped_steps"] == 0
+    assert r["ego_at_fault_collisions"] == 0 and r["unchecked_entries"] == 0 and r["reversing_steps"] == 0
+    assert r["model_violation_steps"] == 0
+
+
+def test_unguarded_the_actuator_clips_and_counts():
+    r = highway_rollouts(Rollout("highway-fast-v0", "reckless", action="continuous", guarded=False, jerk=5.0), 1,
+                         seed=0)
+    assert r["actuator_clipped_steps"] > 0
