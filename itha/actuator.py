@@ -338,6 +338,20 @@ class RateLimitedSet:
             return False
         return self.floor((v, h, vL, a)) >= p.h_min - INNER   # rounding allowed (INNER)
 
+    def speed_limit(self, h: float, vL: float, a: float) -> float | None:
+        """The highest ego speed ``v`` with ``(v, h, vL, a)`` in the set (it falls with ``v``): the set's slice at
+        ``(vL, a)`` is ``v <= speed_limit(h)``; None where not even standing is inside."""
+        p = self.params
+        if not self.contains((0.0, h, vL, a)):
+            return None
+        if self.contains((p.v_max, h, vL, a)):
+            return p.v_max
+        lo, hi = 0.0, p.v_max
+        for _ in range(SPEED_BISECTIONS):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if self.contains((mid, h, vL, a)) else (lo, mid)
+        return lo
+
     def bound(self, v: float, a: float) -> "RateLimitedEgo":
         """The set seen from an ego at speed ``v`` with acceleration ``a`` now."""
         return RateLimitedEgo(self, float(v), float(a))

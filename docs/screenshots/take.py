@@ -1,15 +1,15 @@
 """Screenshots of the rerun web viewer opening the recordings the product writes.
 
-    python docs/screenshots/take.py                 # run the three commands below, then screenshot
+    python docs/screenshots/take.py                 # run the four commands below, then screenshot
     python docs/screenshots/take.py --record-to DIR # the same, keeping the .rrd files in DIR
-    python docs/screenshots/take.py --rrd-dir DIR   # screenshot DIR/{overtake,merge,replay}.rrd as they are
+    python docs/screenshots/take.py --rrd-dir DIR   # screenshot DIR/{overtake,merge,highway,replay}.rrd as they are
     python docs/screenshots/take.py --only merge    # one of them
 
 Each recording is served with ``rerun --serve-web FILE.rrd`` and opened in headless Chromium (WebGL through
 SwiftShader; ``apt-get install chromium``, ``pip install playwright``). Nothing is clicked or zoomed: the
 screenshot is taken once the viewer has loaded the file and its picture stops changing, so it shows what a
 user sees on opening the file (the recording's own blueprint, the time cursor where the viewer leaves it).
-Writes overtake.png, merge.png and replay.png beside this script, and NAME_start.png: the same view
+Writes overtake.png, merge.png, highway.png and replay.png beside this script, and NAME_start.png: the same view
 after pausing and moving the time cursor to the timeline's start (keys only, the view untouched), since the
 viewer follows the streamed file to its last step.
 """
@@ -41,6 +41,9 @@ COMMANDS = {
     "merge": ["guardian", "rollout", "--env", "guardian/Merge-v0", "--agent", "merge", "--action", "meta",
               "--controlled", "3", "--env-config", "traffic=medium", "--env-config", "duration=8", "--episodes", "1",
               "--seed", "0"],
+    # one ego among highway-fast-v0's traffic, seeking the nearest car: the set's slice below the road
+    "highway": ["guardian", "rollout", "--env", "highway-fast-v0", "--agent", "seek", "--action", "continuous",
+                "--episodes", "1", "--seed", "0"],
     # a one-minute generated highD-format recording; input bounds from the data raise self-safety overrides
     "replay": ["guardian", "replay", "{highd}", "--input-bounds", "data", "--no-cache"],
 }
@@ -131,7 +134,7 @@ def screenshot(browser, rrd: Path, png: Path, settle: float = 4.0, timeout: floa
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--rrd-dir", type=Path, help="take DIR/{overtake,merge,replay}.rrd instead of recording")
+    ap.add_argument("--rrd-dir", type=Path, help="take DIR/{overtake,merge,highway,replay}.rrd instead of recording")
     ap.add_argument("--record-to", type=Path, help="where the commands write their .rrd (default: a temp folder)")
     ap.add_argument("--out", type=Path, default=HERE, help="where the PNGs go (default: beside this script)")
     ap.add_argument("--only", choices=sorted(COMMANDS), nargs="+", default=list(COMMANDS), help="these recordings only")

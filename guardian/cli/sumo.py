@@ -114,6 +114,7 @@ def _cells(args) -> list:
     def setting(traffic: str, sublane: bool):
         return SumoSetting(net=HighwayNet.of_road(args.road, lanes=args.lanes, length=args.length), seconds=args.seconds,
                            warmup=args.warmup, guarded=args.guarded, connection=args.connection, start=args.start,
+                           jerk=args.jerk,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))
 
@@ -202,7 +203,8 @@ def _service(args):
     with ServiceThread(build_library(quiet=True), ServiceConfig(port=0)) as service, \
             GuardianClient(service.url) as client:
         def ask(guard, road):
-            session = client.create_scene_session(road, vehicle_body(guard.kin, guard.meta), guardian_body(guard.config))
+            session = client.create_scene_session(road, vehicle_body(guard.kin, guard.meta, guard.actuator),
+                                                  guardian_body(guard.config))
             return Shadow(guard, session, road)
 
         yield ask
@@ -241,6 +243,9 @@ def add_commands(sub) -> None:
     p.add_argument("--warmup", type=positive_number, default=40.0,
                    help="simulated seconds of traffic before the guarded vehicle enters (40)")
     p.add_argument("--seed", type=count(0), default=0, help="the first episode's seed (0)")
+    p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
+                   help="the guarded vehicles' actuator changes their acceleration by at most J m/s^3 (the guardian's "
+                        "sets then carry the acceleration)")
     p.add_argument("--no-guardian", action="store_true", help="the agent drives unsupervised (for comparison)")
     p.add_argument("--through-service", action="store_true",
                    help="also ask every decision of a guardian serve scene session (started here) and count the "

@@ -9,14 +9,18 @@ def _f(v) -> float:
     return float(v)
 
 
-def ego_body(ego, scene, road, length: float) -> dict:
+def ego_body(ego, scene, road, length: float, actuated: bool = False) -> dict:
     """``EgoSpec`` of ``ego`` (``guardian.model.scene.EgoState``) in ``scene``; ``x`` is the centre along the
-    road (``ego.x`` on a ``RoadMap``, ``front - length / 2`` on one straight road)."""
+    road (``ego.x`` on a ``RoadMap``, ``front - length / 2`` on one straight road); ``actuated``: the vehicle
+    declares ``max_jerk``, and the body carries the acceleration its actuator applied over the last step."""
     from guardian.model.roads import RoadMap
 
     x = ego.x if isinstance(road, RoadMap) else ego.front - length / 2
-    return {"x": _f(x), "y": _f(ego.y), "heading": _f(ego.heading), "speed": _f(ego.speed), "front": _f(ego.front),
+    body = {"x": _f(x), "y": _f(ego.y), "heading": _f(ego.heading), "speed": _f(ego.speed), "front": _f(ego.front),
             "lane": int(ego.lane), "target_lane": int(ego.target_lane), "announces": bool(scene.ego.announces)}
+    if actuated:
+        body["acceleration"] = _f(ego.acceleration)
+    return body
 
 
 def car_body(s, road) -> dict:
@@ -31,19 +35,23 @@ def car_body(s, road) -> dict:
     return body
 
 
-def step_body(ego, scene, proposed, road, length: float) -> dict:
+def step_body(ego, scene, proposed, road, length: float, actuated: bool = False) -> dict:
     """A scene step's body (without ``seq``) from the objects a ``BicycleGuardian.step`` takes; ``scene`` must
     carry its readings (``scene.sensed``, as ``scene_of`` builds it)."""
     if not scene.sensed and scene.others:
         raise ValueError("the scene carries no readings (scene.sensed): build it with guardian.model.sensing.scene_of")
-    return {"ego": ego_body(ego, scene, road, length), "cars": [car_body(s, road) for s in scene.sensed],
+    return {"ego": ego_body(ego, scene, road, length, actuated), "cars": [car_body(s, road) for s in scene.sensed],
             "input": [_f(proposed[0]), _f(proposed[1])]}
 
 
-def vehicle_body(kin, meta: bool) -> dict:
-    """The ``vehicle`` of a scene session for a bicycle kinematics (``guardian.decide.kinematics.BicycleEgo``)."""
-    return {"model": "bicycle", "length": _f(kin.length), "width": _f(kin.width), "dt": _f(kin.dt),
+def vehicle_body(kin, meta: bool, actuator=None) -> dict:
+    """The ``vehicle`` of a scene session for a bicycle kinematics (``guardian.decide.kinematics.BicycleEgo``) and,
+    when its acceleration is rate-limited, its actuator (``itha.actuator.Actuator``, profile "hold")."""
+    body = {"model": "bicycle", "length": _f(kin.length), "width": _f(kin.width), "dt": _f(kin.dt),
             "max_steering": _f(kin.max_steering), "max_acceleration": _f(kin.accel), "meta": bool(meta)}
+    if actuator is not None:
+        body["max_jerk"] = _f(actuator.jerk)
+    return body
 
 
 def guardian_body(config) -> dict:

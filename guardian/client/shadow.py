@@ -59,14 +59,15 @@ class Shadow:
 
     def step(self, ego, scene, proposed):
         applied, decision = self.guard.step(ego, scene, proposed)
-        record = self.session.step(**step_body(ego, scene, proposed, self.road, self.guard.kin.length))
+        record = self.session.step(**step_body(ego, scene, proposed, self.road, self.guard.kin.length,
+                                               self.guard.actuator is not None))
         self._compare(applied, decision, record)
         self.tally.steps += 1
         return applied, decision
 
     def policy_lane_change(self, ego, scene, target: int):
         allowed, reason = self.guard.policy_lane_change(ego, scene, target)
-        body = step_body(ego, scene, (0.0, 0.0), self.road, self.guard.kin.length)
+        body = step_body(ego, scene, (0.0, 0.0), self.road, self.guard.kin.length, self.guard.actuator is not None)
         answer = self.lane_changes.lane_change(body["ego"], body["cars"], int(target))
         mine = (bool(allowed), self.road.numbering.slot_text(reason) if reason else reason)  # the service says slots
         if mine != (answer["allowed"], answer["reason"]):

@@ -90,6 +90,18 @@ class BicycleGuardian:
         speeds, _ = self.traffic.self_safe_speeds(scene.with_ego_lanes(lanes))
         return bool(self._accels(ego, speeds))
 
+    def speed_limits(self, ego: EgoState, gaps, lead_speed: float) -> list:
+        """The slice of the ego's car-following set behind a car at ``lead_speed`` (with an actuator, at the ego's
+        acceleration now): for each gap [m], the highest ego speed inside the set (None where none is). What a
+        recording draws; the decisions ask the set in next speeds."""
+        if self.ego_set is not None:
+            return [self.ego_set.speed_limit(float(h), lead_speed, ego.acceleration) for h in gaps]
+        out = []
+        for h in gaps:
+            speeds = self.plain.S.speed_intervals(float(h), lead_speed)
+            out.append(speeds[-1][1] if speeds else None)
+        return out
+
     # ---- policy level (meta agents) ------------------------------------------------------------------
     def policy_lane_change(self, ego: EgoState, scene: Scene, target: int) -> tuple[bool, str]:
         """Is a meta agent's lane change from ``ego.lane`` to ``target`` ρ̂-responsible now (7.5), with an

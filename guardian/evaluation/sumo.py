@@ -38,6 +38,10 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
 - ``ego_speed_reset``: steps after which SUMO had a guarded vehicle at another speed than the model's (moved by
   position onto a junction's internal lane, SUMO stands it still: an instant stop in front of the traffic). The
   model's speed is restored at once (``setPreviousSpeed``) and the step is counted.
+- ``actuator_clipped``: with a jerk limit (``SumoSetting.jerk``: the model applies an acceleration held over the
+  step and changed by at most ``jerk * dt`` from the last, the speed stopping at 0, and the guardian decides on
+  ``itha.actuator.RateLimitedSet``), vehicle-steps whose applied acceleration the actuator could not follow (0 by
+  construction with the guardian; the unguarded drivers' clips are counted too). None without a limit.
 - ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
   vehicles' distance along the road, summed.
 - ``ramp_starts``: inserted guarded vehicles that started on the on-ramp (``SumoSetting.start``); ``merged``: of
@@ -63,6 +67,7 @@ from guardian.evaluation.sumo_agents import agent_of
 from guardian.evaluation.sumo_judge import Tracks, at_fault
 from guardian.evaluation.sumo_setting import SumoSetting, guarded_names, insert_guarded, sumo_args, traffic_accel_of
 from guardian.model.roads import RoadMap
+from itha.actuator import Actuator
 from itha.road import example8_order
 
 PLACEMENT_TOL = 1e-3  # [m] SUMO's placement of the guarded vehicle against the model's state
@@ -80,6 +85,7 @@ class Guarded:
     expected: tuple | None = None
     start_inside: bool | None = None
     lane: int | None = None       # the slot of its centre at the last step (lane changes are counted on it)
+    accel: float = 0.0            # the acceleration its actuator applied over the last step (with a jerk limit)
 
 
 def run_episode(setting: SumoSetting, agent: str, seed: int, guarded: bool = True,
@@ -118,7 +124,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "guarded_lost": 0, "ego_speed_reset": 0, "traffic_car_steps": 0, "traffic_uncovered": 0,
            "traffic_uncovered_braking": 0, "traffic_uncovered_position": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
-           "ramp_starts": 0, "merged": 0,
+           "ramp_starts": 0, "merged": 0, "actuator_clipped": None if setting.jerk is None else 0,
            "inserted": insert_guarded(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
     out["ramp_starts"] = int(out["inserted"] and setting.start == "ramp")
     if out["inserted"]:
@@ -140,6 +146,7 @@ class _Episode:
             self.kin = BicycleEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
                                   frame.lane_width, frame.n_lanes, setting.max_steering)
         self.model = BicycleModel(setting.ego_length, setting.step_length)
+        self.actuator = None if setting.jerk is None else Actuator(jerk=setting.jerk, profile="hold")
         self.shadows, self.tracks, self.prev = Shadows(frame), Tracks(), {}
         self.cars: list = []
         self.left: list = []     # guarded vehicles that left the road or crashed (their tallies are kept)
@@ -149,7 +156,7 @@ class _Episode:
         traci, setting, dt = self.traci, self.setting, self.setting.step_length
         single = setting.guarded == 1
         for name in guarded_names(setting):
-            guard = BicycleGuardian(self.kin, self.config, meta=False)
+            guard = BicycleGuardian(self.kin, self.config, meta=False, actuator=self.actuator)
             if ask is not None and self.guarded:
                 guard = ask(guard, self.frame.road)
             own = rng if single else np.random.default_rng([int(rng.integers(1 << 31))])  # one driver each
@@ -267,20 +274,29 @@ class _Episode:
         out, kin, setting = self.out, self.kin, self.setting
         proposed = car.drive(me, others, t)
         seen = scene(self.frame, me, others, self.config.reversing, kin.LATERAL_MARGIN)
+        state = ego_state(me) if self.actuator is None else replace(ego_state(me), acceleration=car.accel)
         if self.guarded:
-            applied, d = car.guard.step(ego_state(me), seen, proposed)
+            applied, d = car.guard.step(state, seen, proposed)
             out["overrides"] += d.changed != "none"
             out["safety_overrides"] += d.changed != "none" and not d.clipped_to_model
             out["failsafe_steps"] += d.level == "failsafe"
         else:
             applied = (float(np.clip(proposed[0], -kin.accel, kin.accel)),
                        float(np.clip(proposed[1], -setting.max_steering, setting.max_steering)))
-            d = car.guard.step(ego_state(me), seen, proposed)[1]   # asked only for the start and the announcement
+            d = car.guard.step(state, seen, proposed)[1]   # asked only for the start and the announcement
         if car.start_inside is None:
             car.start_inside = bool(d.in_invariant_set)
         if self.recorder is not None:
             self.recorder.decision(car.name, proposed, applied, d if self.guarded else None)
-        car.expected = self.model.step(me.x, me.y, me.heading, me.speed, float(applied[0]), float(applied[1]))
+        a = float(applied[0])
+        if self.actuator is not None:   # the actuator follows at most jerk * dt from the last; the speed stops at 0
+            fall = self.actuator.jerk * setting.step_length
+            limited = min(max(a, car.accel - fall), car.accel + fall)
+            out["actuator_clipped"] += limited != a
+            a = car.accel = limited
+        car.expected = self.model.step(me.x, me.y, me.heading, me.speed, a, float(applied[1]))
+        if self.actuator is not None and car.expected[3] < 0.0 <= me.speed:
+            car.expected = (*car.expected[:3], 0.0)
         x, y, heading, speed = car.expected
         own = place(self.traci, self.frame, car.name, x, y, heading, speed)
         slots = self.frame.road.body_slots(x, y, heading, me.length, me.width)
@@ -348,6 +364,7 @@ SUMMED = ("steps", "vehicle_steps", "collisions", "sumo_collisions", "shadow_col
           "failsafe_steps", "ego_uncovered", "ego_speed_reset", "ego_lane_unseen", "guarded_lost", "traffic_car_steps",
           "traffic_uncovered", "traffic_uncovered_braking", "traffic_uncovered_position", "emergency_braking",
           "teleports", "distance_m", "ramp_starts", "merged")
+OPTIONAL = ("actuator_clipped",)   # None where not measured (no jerk limit); summed where measured
 
 
 def summary(results: list) -> dict:
@@ -355,6 +372,9 @@ def summary(results: list) -> dict:
     vehicle at fault; ``hours`` of guarded driving (vehicle-steps)."""
     inserted = [r for r in results if r["inserted"]]
     total = {k: sum(r[k] for r in inserted) for k in SUMMED}
+    for k in OPTIONAL:
+        measured = [r[k] for r in inserted if r.get(k) is not None]
+        total[k] = sum(measured) if measured else None
     return {"episodes": len(results), "not_inserted": len(results) - len(inserted), **total,
             "ego_worst_m": max((r["ego_worst_m"] for r in inserted), default=0.0),
             "traffic_braking_excess": max((r["traffic_braking_excess"] for r in inserted), default=0.0),

@@ -41,6 +41,7 @@ class SumoSetting:
     guarded: int = 1            # guarded vehicles (each its own guardian and driver; every other vehicle is traffic)
     connection: str = "libsumo"  # libsumo, traci or HOST:PORT (guardian.adapters.sumo.connection)
     start: str = "main"          # where the guarded vehicle starts: on a main lane, or on the on-ramp (one vehicle)
+    jerk: float | None = None    # the guarded vehicles' actuator changes their acceleration by at most this [m/s^3]
 
     def __post_init__(self):
         if self.guarded < 1:
@@ -53,6 +54,8 @@ class SumoSetting:
             raise ConfigError(f"max_steering must be below pi/2, got {self.max_steering}")
         if self.start not in ("main", "ramp"):
             raise ConfigError(f"start must be 'main' or 'ramp', got {self.start!r}")
+        if self.jerk is not None and not (math.isfinite(self.jerk) and self.jerk > 0):
+            raise ConfigError(f"jerk must be a positive finite number [m/s^3] (None: no limit), got {self.jerk}")
         if self.start == "ramp" and not (self.net.ramp_at and self.guarded == 1):
             raise ConfigError("start 'ramp' needs a road with an on-ramp (ramp_at) and one guarded vehicle")
 

@@ -41,6 +41,23 @@ def follow_labels(rec, labelled) -> None:
 
 
 FLEET_SHOWN = 4   # guarded cars whose plots a recording of several opens on (every car's are in the file)
+SLICE_GAPS = np.linspace(0.0, 120.0, 61)   # [m] where the set's slice is drawn
+SLICE_VIEW = "the invariant set's slice: the ego's speed (up, m/s) against its gap (m) to the nearest car ahead"
+
+
+def slice_of(guard, ego, leaders) -> dict | None:
+    """What a recording draws of a guarded car's car-following set at its state now (``BicycleGuardian``): behind
+    the nearest of ``leaders`` (``guardian.model.scene.Car``, the cars ahead in the lanes it holds), the highest
+    speed the set allows at each gap of ``SLICE_GAPS`` and where the car is; None with no car ahead."""
+    if not leaders:
+        return None
+    lead = min(leaders, key=lambda c: c.front - c.length - ego.front)
+    gap = lead.front - lead.length - ego.front
+    limits = guard.speed_limits(ego, SLICE_GAPS, max(lead.speed, 0.0))
+    (own,) = guard.speed_limits(ego, [gap], max(lead.speed, 0.0))
+    return {"lead": lead.name or "the car ahead", "lead_speed": lead.speed, "gap": gap, "speed": ego.speed,
+            "inside": own is not None and ego.speed <= own + 1e-9,
+            "edge": [(float(h), v) for h, v in zip(SLICE_GAPS, limits) if v is not None]}
 
 
 def car_root(car: int | None) -> str:
@@ -77,14 +94,21 @@ def rollout_blueprint(base, overtake: bool, cars: int = 1):
         plots = _input_plots(None)
     else:
         plots = [rrb.Tabs(*_input_plots(k), active_tab=0) for k in range(min(cars, FLEET_SHOWN))]
+    road = rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"], name=(
+        "road (ego green, lead amber, traffic blue; ego magenta when overridden, red on fail-safe), following the ego"
+        if cars == 1 else "road (guarded cars green, magenta when overridden, red on fail-safe; traffic blue), "
+                          "following car 0"), visual_bounds=bounds)
+    if not overtake:   # highway-env's roads: the car-following set's slice below the road
+        road = rrb.Vertical(road, rrb.Spatial2DView(
+            origin="/slice", name=SLICE_VIEW + (" (car 0)" if cars > 1 else ""),
+            visual_bounds=rrb.VisualBounds2D(x_range=[-5.0, SLICE_GAPS[-1] + 5.0], y_range=[-45.0, 5.0])),
+            row_shares=[3, 2])
     if overtake:
         plots.append(rrb.TimeSeriesView(origin="/intention", name="the lead's valid intentions"))
         plots.append(rrb.TextLogView(origin="/", contents=["/guardian/active_set", "/intention/log"],
                                      name="the active set (each step) and the intentions' changes"))
-    name = "road (ego green, lead amber, traffic blue; ego magenta when overridden, red on fail-safe), following the ego" \
-        if cars == 1 else "road (guarded cars green, magenta when overridden, red on fail-safe; traffic blue), following car 0"
     return rrb.Blueprint(rrb.Horizontal(
-        rrb.Spatial2DView(origin="/road/follow", contents=["/road/**"], name=name, visual_bounds=bounds),
+        road,
         rrb.Vertical(*plots, rrb.TextLogView(origin="/events", name="overrides and events"),
                      row_shares=[2] * len(plots) + [1]),
         column_shares=[3, 2]), collapse_panels=True)
@@ -387,7 +411,11 @@ class GuardianRecorder(_Closing):
       ``road/traffic`` the vehicles as boxes on the ``step`` timeline (x along the road, y down as in
       highway-env's renderer; a guarded car magenta on a step the guardian overrode for safety, red on a fail-safe
       step, ``override_mark``); ``road/follow`` a frame at the ego's x that the road view is seen from, and
-      ``road/follow/labels`` the names ("ego", "lead", "car K") in that frame. With several
+      ``road/follow/labels`` the names ("ego", "lead", "car K") in that frame. ``slice`` (highway-env's roads,
+      guarded): the car-following set's slice at the state now (``slice_of``): ``slice/edge`` the highest speed the
+      set allows at each gap behind the nearest car ahead at that car's speed (and, with an actuator, the ego's
+      acceleration), ``slice/ego`` where the ego is (green inside, red outside), ``slice/h_min`` the least gap;
+      speed is drawn upwards (negative y). With several
       guarded cars (``--controlled N``): ``road/guarded`` the cars labelled ``car K``, the view follows car 0, and
       each car's series below are under ``cars/car_K/`` (its events name it)
     * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
@@ -456,6 +484,8 @@ class GuardianRecorder(_Closing):
         for car, r in (enumerate(g["agents"]) if fleet else [(None, g)]):
             self._inputs(car, r)
             self._override(car, r, episode, t)
+        if g and lead is None:
+            self._slice(env, (g["agents"][0] if fleet else g))
         if g and not fleet:
             rec.log("guardian/active_set", rr.TextLog(str(g.get("active_set"))))
             valid = tuple(g.get("valid_intentions", []))
@@ -466,6 +496,39 @@ class GuardianRecorder(_Closing):
                                                         f"active set {g.get('active_set')}"))
                     self._valid = valid
         self.step_index += 1
+
+    def _slice(self, env, record: dict) -> None:
+        """The set's slice of the first guarded car at its state now (``slice_of``)."""
+        from guardian.adapters.highway_env.scene import bicycle_state
+        from guardian.decide.bicycle import BicycleGuardian
+
+        cars, supervision = env.get_wrapper_attr("cars"), env.get_wrapper_attr("supervision")
+        if not cars or not isinstance(cars[0].guard, BicycleGuardian):
+            return
+        vehicle, base = cars[0].vehicle, env.unwrapped
+        lanes = frozenset(record.get("lanes") or ())
+        scene = supervision.scene(base, lanes, ego=vehicle, guarded=supervision.guarded).with_ego_lanes(lanes)
+        drawn = slice_of(cars[0].guard, bicycle_state(vehicle, supervision.road),
+                         [c for lane in sorted(lanes) for c in scene.leaders(lane)])
+        if drawn is None:
+            self.rec.log("slice", rr.Clear(recursive=True))
+            self.rec.log("slice/ego", rr.Points2D([[SLICE_GAPS[-1] / 2, -20.0]], radii=0.1, colors=[APPLIED],
+                                                  labels=["no car ahead in the lanes it holds: only the top speed binds"]))
+            return
+        shown = min(drawn["gap"], float(SLICE_GAPS[-1]))
+        h_min, top = cars[0].guard.config.h_min, float(SLICE_GAPS[-1])
+        self.rec.log("slice/h_min", rr.LineStrips2D([[[h_min, 0.0], [h_min, -45.0]]], colors=[FAILSAFE],
+                                                    labels=[f"h_min {h_min:g} m"]))
+        self.rec.log("slice/axes", rr.LineStrips2D([[[0.0, 0.0], [top, 0.0]], [[0.0, 0.0], [0.0, -40.0]]],
+                                                   colors=[APPLIED]), static=True)
+        self.rec.log("slice/ticks", rr.Points2D([[0.0, 0.0], [top, 0.0], [0.0, -20.0], [0.0, -40.0]], radii=0.3,
+                                                colors=[APPLIED] * 4,
+                                                labels=["0", f"gap {top:g} m", "20 m/s", "40 m/s"]), static=True)
+        self.rec.log("slice/edge", rr.LineStrips2D([[[h, -v] for h, v in drawn["edge"]]], colors=[ADMISSIBLE]))
+        self.rec.log("slice/ego", rr.Points2D([[shown, -drawn["speed"]]], radii=1.2,
+                                              colors=[GUARDED if drawn["inside"] else FAILSAFE],
+                                              labels=[f"ego {drawn['speed']:.1f} m/s, {drawn['gap']:.1f} m behind "
+                                                      f"{drawn['lead']} at {drawn['lead_speed']:.1f} m/s"]))
 
     def _inputs(self, car: int | None, g: dict) -> None:
         """One guarded car's proposed and applied inputs and its admissible bands."""

@@ -29,6 +29,7 @@ from guardian.errors import ConfigError, ServiceError
 from guardian.model.roads import RoadMap, road_from_dict
 from guardian.model.scene import Car, EgoState
 from guardian.model.sensing import Sensed, scene_of
+from itha.actuator import Actuator
 
 Finite = Annotated[float, Field(strict=True, allow_inf_nan=False)]   # a number: never "1.5" or true
 Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
@@ -36,7 +37,7 @@ Slot = Annotated[int, Field(strict=True, ge=0, le=63)]
 MAX_CARS = 512
 MODEL_FIELDS = {"bicycle": ("max_steering", "max_acceleration"),
                 "point_mass": ("acceleration", "lateral_speed", "lateral_scale")}
-MODEL_OPTIONS = {"bicycle": ("meta",), "point_mass": ()}
+MODEL_OPTIONS = {"bicycle": ("meta", "max_jerk"), "point_mass": ()}
 
 
 class _Strict(BaseModel):
@@ -102,7 +103,10 @@ class VehicleSpec(_Strict):
     * ``bicycle`` (highway-env's vehicles, a SUMO or CARLA car): the kinematic bicycle with ``max_steering``
       [rad] and ``max_acceleration`` [m/s^2] (equal to ``guardian.traffic_accel``: the car-following sets take
       one bound for the ego's braking and the traffic's); input ``[acceleration, steering]``; ``meta``: the
-      stack's own controller steers lane changes (steps then give the target lane);
+      stack's own controller steers lane changes (steps then give the target lane); ``max_jerk`` [m/s^3]: its
+      actuator holds an acceleration over a step and changes it by at most ``max_jerk * dt`` from one step to the
+      next, the speed stopping at 0 (each step then gives the ego's ``acceleration`` applied over the last step,
+      and the guardian decides on ``itha.actuator.RateLimitedSet``, answering only accelerations it reaches);
     * ``point_mass``: the overtake model (6.3) of Chapter 6 among traffic, input ``[a_ex, v_ey]``, with the
       service's intention library: ``acceleration`` and ``lateral_speed`` its bounds and ``dt`` its period
       (they must be the library's), ``lateral_scale`` metres per unit of ``y_e``. Steps name the ``lead``.
@@ -116,6 +120,7 @@ class VehicleSpec(_Strict):
     max_steering: Positive | None = Field(None, lt=math.pi / 2)
     max_acceleration: Positive | None = Field(None, le=20)
     meta: StrictBool | None = None
+    max_jerk: Positive | None = Field(None, le=10000)
     acceleration: tuple[Finite, Finite] | None = None
     lateral_speed: tuple[Finite, Finite] | None = None
     lateral_scale: Positive | None = Field(None, le=20)
@@ -129,7 +134,8 @@ class VehicleSpec(_Strict):
                     "('point_mass'); a dynamic model (tyre slip, actuator lag) is neither")
         own = set(MODEL_FIELDS[self.model]) | set(MODEL_OPTIONS[self.model])
         foreign = sorted(f for fields in MODEL_FIELDS.values() for f in fields if f not in own
-                         and getattr(self, f) is not None) + (["meta"] if "meta" not in own and self.meta else [])
+                         and getattr(self, f) is not None) + (["meta"] if "meta" not in own and self.meta else []) \
+            + (["max_jerk"] if "max_jerk" not in own and self.max_jerk is not None else [])
         if foreign:
             return f"vehicle field(s) {', '.join(foreign)} do not apply to model {self.model!r}"
         missing = [f for f in MODEL_FIELDS[self.model] if getattr(self, f) is None]
@@ -195,7 +201,8 @@ class EgoSpec(_Strict):
     """The ego now: its centre ``(x, y)``, heading [rad] and speed [m/s]; ``front`` its front bumper along the
     road (default ``x + length / 2``); ``lane`` the lane it is closest to and ``target_lane`` the lane its
     controller steers to (defaults: the lane whose centre is nearest; that lane); ``announces``: it takes part
-    in the ordered over-approximation (several guarded cars)."""
+    in the ordered over-approximation (several guarded cars); ``acceleration`` [m/s^2]: what its actuator applied
+    over the last step (required when the vehicle declares ``max_jerk``, refused otherwise)."""
 
     x: Finite
     y: Finite
@@ -205,6 +212,7 @@ class EgoSpec(_Strict):
     lane: Slot | None = None
     target_lane: Slot | None = None
     announces: StrictBool = False
+    acceleration: Finite | None = None
 
 
 class CarSpec(_Strict):
@@ -349,16 +357,21 @@ class _Bicycle:
         else:
             kin = BicycleEgo(v.dt, c.traffic_accel, v.length, v.width, road.lane_width, road.n_lanes, v.max_steering)
         self.scene = scene
-        self.guard = BicycleGuardian(kin, c, meta=bool(v.meta))
+        self.actuator = None if v.max_jerk is None else Actuator(jerk=v.max_jerk, profile="hold")
+        self.guard = BicycleGuardian(kin, c, meta=bool(v.meta), actuator=self.actuator)
         self.coverage = ModelCoverage(v.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, ego_kinematics=kin,
-                                      reversing=c.reversing)
+                                      ego_stops_at_zero=self.actuator is not None, reversing=c.reversing)
 
     def state(self, e: EgoSpec) -> EgoState:
         road = self.scene.road
         lane = e.lane if e.lane is not None else road.nearest_slot(e.x, e.y)
         target = e.target_lane if e.target_lane is not None else lane
         front = e.front if e.front is not None else e.x + self.scene.vehicle.length / 2
-        return EgoState(front, e.y, e.heading, e.speed, lane, target, e.x)
+        if (e.acceleration is None) != (self.actuator is None):
+            raise ServiceError(422, "ego.acceleration is required: the vehicle declares max_jerk (what its actuator "
+                                    "applied over the last step)" if self.actuator is not None else
+                               "ego.acceleration applies to a vehicle that declares max_jerk only")
+        return EgoState(front, e.y, e.heading, e.speed, lane, target, e.x, e.acceleration or 0.0)
 
     def _scene(self, e: EgoSpec, state: EgoState, cars):
         return self.scene.scene(Car(state.front, state.speed, frozenset(), self.scene.vehicle.length, "ego",
@@ -403,7 +416,7 @@ class _PointMass:
     def state(self, req: SceneStep) -> tuple[np.ndarray, list]:
         """The overtake state and the traffic (every car but the lead)."""
         e = req.ego
-        inapplicable = [n for n in ("front", "lane", "target_lane") if getattr(e, n) is not None]
+        inapplicable = [n for n in ("front", "lane", "target_lane", "acceleration") if getattr(e, n) is not None]
         if e.heading != 0.0:
             inapplicable.append("heading")
         if inapplicable:

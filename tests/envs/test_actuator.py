@@ -22,14 +22,16 @@ def test_the_actuator_follows_the_rate_limit_counts_its_clips_and_never_reverses
     dt = 1 / env.unwrapped.config["simulation_frequency"]
     per_policy = env.unwrapped.config["simulation_frequency"] // env.unwrapped.config["policy_frequency"]
     assert info["actuator"] == {"jerk": 5.0, "clipped_steps": 0}
-    speeds, accels = [ego.speed], [ego.applied_acceleration]
+    speeds, accels, clips = [ego.speed], [ego.applied_acceleration], []
     for k in range(40):
         _, _, term, trunc, info = env.step(np.array([-1.0, 0.0]))   # full braking, asked at once
         speeds.append(ego.speed)
         accels.append(ego.applied_acceleration)
-        assert info["actuator"]["clipped_steps"] <= per_policy
+        clips.append(info["actuator"]["clipped_steps"])
         if term or trunc:
             break
+    # 1 m/s^2 a simulation step from 0 to -5: the first four steps could not follow the command, then none
+    assert 5.0 * dt == 1.0 and clips[:3] == [4, 0, 0] and sum(clips) == 4
     steps = np.diff(accels)
     assert np.all(np.abs(steps) <= 5.0 * dt * per_policy + 1e-9)
     assert min(speeds) >= 0.0 and speeds[-1] == 0.0

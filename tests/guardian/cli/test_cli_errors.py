@@ -375,7 +375,8 @@ def test_falsify_human_output_shows_every_figure(monkeypatch, capsys):
     counts = ("episodes", "steps", "collisions", "ego_at_fault_collisions", "starts_outside",
               "collisions_after_outside_starts", "ego_at_fault_after_outside_starts", "safety_violations",
               "failsafe_steps", "override_steps", "conflict_steps", "unchecked_entries", "reversing_steps",
-              "unsupervised_steps", "traffic_reversing_uncovered_steps", "episodes_cut", "exceptions")
+              "unsupervised_steps", "traffic_reversing_uncovered_steps", "episodes_cut", "actuator_clipped_steps",
+              "exceptions")
     row = lambda group, base: dict({k: base + 7 * i for i, k in enumerate(counts)}, group=group)
     result = {"episodes": 1001, "seconds": 12.5, "workers": 1, "scheduler": None, "cells": 3, "episodes_per_cell": 1,
               "totals": row("all", 1001), "by_env": [row("exit-v0 meta", 2001)], "by_agent": [row("hold", 3001)],

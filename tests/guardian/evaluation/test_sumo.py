@@ -156,12 +156,16 @@ def test_through_the_service_every_decision_is_the_in_process_one_to_the_bit(lib
 
     with ServiceThread(library, ServiceConfig(port=0)) as service, GuardianClient(service.url) as client:
         def ask(guard, road):
-            session = client.create_scene_session(road, vehicle_body(guard.kin, guard.meta), guardian_body(guard.config))
+            session = client.create_scene_session(road, vehicle_body(guard.kin, guard.meta, guard.actuator),
+                                                  guardian_body(guard.config))
             return Shadow(guard, session, road)
 
         r = run_episode(SumoSetting(seconds=15.0, warmup=30.0), "seek", seed=1, ask=ask)
+        jerky = run_episode(SumoSetting(seconds=15.0, warmup=30.0, jerk=5.0), "seek", seed=1, ask=ask)
     assert r["service_steps"] == r["steps"] > 0 and r["service_disagreements"] == 0, r
     assert r["safety_overrides"] > 0
+    assert jerky["service_steps"] == jerky["steps"] > 0 and jerky["service_disagreements"] == 0, jerky
+    assert jerky["actuator_clipped"] == 0 and jerky["safety_overrides"] > 0
 
 
 def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
@@ -189,7 +193,8 @@ def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
                        (["--connection", "127.0.0.1:1"], "no SUMO server answers at 127.0.0.1:1"),
                        (["--connection", "127.0.0.1:1", "--workers", "2"], "drives one SUMO server"),
                        (["--write-scenario", "x", "--campaign"], "--write-scenario writes one setting"),
-                       (["--rerun", "x.rrd", "--workers", "2"], "--rerun records in this process")):
+                       (["--rerun", "x.rrd", "--workers", "2"], "--rerun records in this process"),
+                       (["--jerk", "0"], "--jerk")):
         done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
         lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
         assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
@@ -526,3 +531,16 @@ def test_sumo_standing_a_guarded_vehicle_on_a_junction_is_undone_and_counted():
     setting = SumoSetting(net=HighwayNet(exit_at=1000.0), traffic=Traffic(car_following="IDM"))
     r = run_episode(setting, "reckless", 932)
     assert r["ego_speed_reset"] >= 1 and r["collisions"] == 0, r["crashes"]
+
+
+def test_a_jerk_limited_guarded_vehicle_asks_only_for_what_its_actuator_reaches_and_causes_no_collision():
+    """The guarded vehicle's actuator follows at most jerk * dt a step (``SumoSetting.jerk``); the guardian decides
+    on the rate-limited set. Unguarded, the random driver's jumps are clipped and counted."""
+    setting = replace(MERGE, jerk=5.0)
+    guarded = summary([run_episode(replace(setting, guarded=g), agent, seed)
+                       for agent, g in (("seek", 1), ("random", 3)) for seed in range(2)])
+    assert guarded["actuator_clipped"] == 0 and guarded["at_fault"] == 0 and guarded["ego_uncovered"] == 0, guarded
+    assert guarded["safety_overrides"] > 0
+    unguarded = summary([run_episode(setting, "random", 0, guarded=False)])
+    assert unguarded["actuator_clipped"] > 0
+    assert summary([run_episode(MERGE, "random", 0)])["actuator_clipped"] is None

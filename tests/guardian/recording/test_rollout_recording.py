@@ -24,8 +24,9 @@ def test_a_rollout_recording_follows_the_ego_not_kilometres_of_road(tmp_path):
     env = gym.make("highway-fast-v0")
     env.reset(seed=0)
     base = env.unwrapped
-    road_view, side = rollout_blueprint(base, overtake=False).root_container.contents
-    assert str(road_view.origin) == "/road/follow"
+    left, side = rollout_blueprint(base, overtake=False).root_container.contents
+    road_view, slice_view = left.contents
+    assert str(road_view.origin) == "/road/follow" and str(slice_view.origin) == "/slice"
     (bounds,) = road_view.properties["VisualBounds2D"].range.as_arrow_array().to_pylist()
     x0, x1 = bounds["x_range"]
     assert x0 < 0 < x1 and x1 - x0 == ROLLOUT_VIEW
@@ -136,3 +137,48 @@ def test_a_recording_of_several_guarded_cars_shows_each_car_and_whose_override_i
     tabs = [c for c in side.contents if type(c).__name__ == "Tabs"]
     assert [[str(c) for c in tab.contents[0].contents][0] for tab in tabs] == \
         [f"/cars/car_{k}/inputs/proposed/throttle" for k in range(3)]
+
+
+def slice_chunks(rrd, entity: str, ending=(":positions", ":strips")) -> list:
+    from rerun.chunk import RrdReader
+
+    out = []
+    for chunk in RrdReader(str(rrd)).stream().to_chunks():
+        if chunk.entity_path == entity:
+            batch = chunk.to_record_batch()
+            name = next(c for c in batch.schema.names if c.endswith(ending))
+            out += batch.column(name).to_pylist()
+    return out
+
+
+def test_the_recording_draws_the_invariant_sets_slice_at_the_state_now(tmp_path):
+    """Below the road: the car-following set's edge behind the nearest car ahead (the highest speed it allows at
+    each gap) and the ego's point, inside it on every step the guardian kept the car in its set; with a jerk-limited
+    actuator the edge is the rate-limited set's at the ego's acceleration, and lies below (7.3)'s."""
+    from guardian.config import GuardianConfig
+    from guardian.decide.bicycle import BicycleGuardian
+    from guardian.decide.kinematics import BicycleEgo
+    from guardian.evaluation.rollouts import Rollout, highway_rollouts
+    from guardian.model.scene import Car, EgoState
+    from guardian.recording.rerun import slice_of
+    from itha.actuator import Actuator
+
+    rrd = tmp_path / "slice.rrd"
+    r = highway_rollouts(Rollout("highway-fast-v0", "seek", action="continuous"), 1, 0, rerun_path=rrd)
+    points, edges = slice_chunks(rrd, "/slice/ego"), slice_chunks(rrd, "/slice/edge")
+    assert len(points) == len(edges) > 0 and r["starts_outside"] == 0
+    green = slice_chunks(rrd, "/slice/ego", (":colors",))
+    assert {c for (c,) in green} == {0x28B43CFF}   # GUARDED: inside on every step (a point outside is red)
+    for (point,), (edge,) in zip(points, edges):
+        h, minus_v = point
+        above = [-y for x, y in edge if x >= h]
+        assert not above or -minus_v <= above[0] + 1e-6   # under the edge at the next gap drawn
+    kin = BicycleEgo(1 / 15, 5.0, 5.0, 2.0, 4.0, 3, 0.785)
+    ego = EgoState(100.0, 4.0, 0.0, 25.0, 1, 1, 0.0, 2.0)
+    lead = Car(140.0, 20.0, frozenset({2}), 5.0, "car 1")
+    plain = slice_of(BicycleGuardian(kin, GuardianConfig(), False), ego, [lead])
+    jerky = slice_of(BicycleGuardian(kin, GuardianConfig(), False, Actuator(jerk=5.0, profile="hold")), ego, [lead])
+    assert plain["gap"] == jerky["gap"] == 35.0 and plain["lead"] == "car 1"
+    assert all(vj <= vp for (_, vp), (_, vj) in zip(plain["edge"], jerky["edge"]))
+    assert any(vj < vp - 1.0 for (_, vp), (_, vj) in zip(plain["edge"], jerky["edge"]))
+    assert slice_of(BicycleGuardian(kin, GuardianConfig(), False), ego, []) is None

@@ -127,6 +127,9 @@ def test_a_point_mass_session_decides_as_the_overtake_guardian_among_traffic(tra
     ({"model": "point_mass", "length": 5.0, "width": 2.0, "dt": 0.1, "acceleration": [-4, 3],
       "lateral_speed": [-1.8, 1.8], "lateral_scale": 2.0}, "vehicle acceleration (-4.0, 3.0) is not the (-3.0, 3.0)"),
     ({**BICYCLE, "max_steering": 1.6}, "max_steering"),
+    ({"model": "point_mass", "length": 5.0, "width": 2.0, "dt": 0.1, "acceleration": [-3, 3],
+      "lateral_speed": [-1.8, 1.8], "lateral_scale": 2.0, "max_jerk": 5.0}, "max_jerk do not apply"),
+    ({**BICYCLE, "max_jerk": 0.0}, "max_jerk"),
 ])
 def test_a_vehicle_model_the_guardian_cannot_guarantee_is_refused_by_name(client, vehicle, says):
     with pytest.raises(ServiceError) as err:
@@ -148,6 +151,34 @@ def test_fields_that_do_not_apply_are_refused(client, traffic_library):
                          input=[0.0, 0.0])
         assert err.value.status == 422 and "point-mass sessions only" in err.value.message
         assert session.step(ego={"x": 0.0, "y": 4.0, "speed": 20.0}, cars=[], input=[0.0, 0.0])["t"] == 0
+
+
+def test_a_vehicle_that_declares_a_jerk_limit_gets_only_accelerations_its_actuator_reaches(client):
+    """``max_jerk``: the in-process actuated guardian's decision, within ``[a - max_jerk dt, a + max_jerk dt]`` of the
+    acceleration the step gives; the acceleration is required with it and refused without it."""
+    from guardian.decide.bicycle import BicycleGuardian
+    from guardian.decide.kinematics import BicycleEgo
+    from guardian.model.scene import Car, EgoState, Scene
+    from itha.actuator import Actuator
+
+    jerky = {**BICYCLE, "max_jerk": 5.0}
+    reach = 5.0 * BICYCLE["dt"]
+    with client.create_scene_session(ROAD, jerky) as session:
+        with pytest.raises(ServiceError) as err:
+            session.step(ego={"x": 0.0, "y": 4.0, "speed": 20.0}, cars=[], input=[0.0, 0.0])
+        assert err.value.status == 422 and "ego.acceleration is required" in err.value.message
+        record = session.step(ego={"x": 0.0, "y": 4.0, "speed": 20.0, "acceleration": 1.0},
+                              cars=[car("L", 30.0, 4.0, 10.0)], input=[6.0, 0.0])
+    assert 1.0 - reach <= record["applied"][0] <= 1.0 + reach and record["overridden"]
+    kin = BicycleEgo(BICYCLE["dt"], 6.0, 5.0, 2.0, 4.0, 3, BICYCLE["max_steering"])
+    guard = BicycleGuardian(kin, GuardianConfig(), False, Actuator(jerk=5.0, profile="hold"))
+    ego = EgoState(2.5, 4.0, 0.0, 20.0, 1, 1, 0.0, 1.0)
+    scene = Scene(Car(2.5, 20.0, frozenset(), 5.0, "ego"), (Car(32.5, 10.0, frozenset({2}), 5.0, "L"),), 3)
+    assert record["applied"][0] == float(guard.step(ego, scene, [6.0, 0.0])[0][0])
+    with client.create_scene_session(ROAD, BICYCLE) as session:
+        with pytest.raises(ServiceError) as err:
+            session.step(ego={"x": 0.0, "y": 4.0, "speed": 20.0, "acceleration": 0.0}, cars=[], input=[0.0, 0.0])
+        assert err.value.status == 422 and "max_jerk only" in err.value.message
 
 
 # ---- lanes from bodies, lane changes, coverage ----------------------------------------------------------------
