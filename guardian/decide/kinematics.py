@@ -146,13 +146,20 @@ class BicycleEgo:
         self.max_steering = max_steering
 
     def accel_for_speeds(self, v: float, speeds, bounds: tuple | None = None) -> list:
-        """Accelerations giving a next speed in ``speeds``, within ``bounds`` (default ``±accel``). With
-        ``bounds`` (an actuator's reach) the speed stops at 0: every acceleration that stops the car reaches 0."""
+        """Accelerations giving a next speed in ``speeds``, within ``bounds`` (default ``±accel``).
+
+        With ``bounds`` (an actuator's reach) the speed stops at 0, and the reach's lowest command is taken
+        exactly where its next speed (``max(v + dt lower, 0)``, the arithmetic of the actuated set's own queries)
+        lies in an interval: near the set's edge the hardest braking may be the one command left, and the
+        interval of next speeds it leaves can be narrower than the rounding shrink of the others."""
         lower, upper = (-self.accel, self.accel) if bounds is None else bounds
+        lowest = None if bounds is None else max(v + self.dt * lower, 0.0)
         out = []
         for lo, hi in speeds:
-            a_lo = lower if bounds is not None and lo <= 0.0 else max((lo - v) / self.dt + ROUNDING, lower)
+            a_lo = max((lo - v) / self.dt + ROUNDING, lower)
             a_hi = min((hi - v) / self.dt - ROUNDING, upper)
+            if lowest is not None and lo <= lowest <= hi:
+                a_lo, a_hi = lower, max(a_hi, lower)
             if a_lo <= a_hi:
                 out.append((a_lo, a_hi))
         return out

@@ -81,3 +81,16 @@ def test_a_proposal_beyond_the_reach_is_a_clip_to_the_model_not_an_override():
     applied, d = g.step(ego, _scene(ego, 400.0, 20.0), [3.0, 0.0])   # free road, the proposal a jump of 3
     assert applied[0] == pytest.approx(5.0 * DT)
     assert d.clipped_to_model and "actuator" in " ".join(d.reasons)
+
+
+def test_at_the_sets_edge_the_hardest_braking_the_actuator_allows_is_admissible_not_a_failsafe():
+    """Found in SUMO: near the top speed with the acceleration still rising, only the hardest braking keeps the
+    speed below v_max; the next speeds it leaves were narrower than the rounding shrink of the accelerations, so
+    the guardian found no acceleration and called a fail-safe (the same command, but a false alarm)."""
+    kin = BicycleEgo(0.1, CONFIG.traffic_accel, 5.0, 2.0, W, N, math.pi / 4)
+    g = BicycleGuardian(kin, CONFIG, False, Actuator(jerk=5.0, profile="hold"))
+    ego = EgoState(100.0, 4.0, 0.0, 39.89812143589666, 1, 1, 0.0, 1.2593928190166714)
+    assert g.ego_set.contains((ego.speed, math.inf, 0.0, ego.acceleration))
+    applied, d = g.step(ego, Scene(Car(ego.front, ego.speed, frozenset(), 5.0, "ego"), (), N), [3.0, 0.0])
+    assert d.level != "failsafe" and d.in_invariant_set
+    assert applied[0] == pytest.approx(ego.acceleration - 0.5, abs=1e-8) and applied[0] >= ego.acceleration - 0.5
