@@ -21,6 +21,8 @@ PROPOSED, APPLIED, ADMISSIBLE = (220, 50, 50), (30, 30, 30), (40, 160, 60)
 
 
 GUARDED, OVERRIDDEN, FAILSAFE = (40, 180, 60), (200, 40, 200), (220, 50, 50)
+HELD, REFUSED = (40, 180, 60, 50), (220, 50, 50, 70)   # translucent: the lanes a guarded car holds, entries refused
+LANE_AHEAD = 120.0   # [m] of each such lane drawn, from 10 m behind the guarded car
 
 
 def override_mark(record: dict) -> tuple:
@@ -486,6 +488,7 @@ class GuardianRecorder(_Closing):
             self._override(car, r, episode, t)
         if g and lead is None:
             self._slice(env, (g["agents"][0] if fleet else g))
+            self._lanes(env, (g["agents"][0] if fleet else g))
         if g and not fleet:
             rec.log("guardian/active_set", rr.TextLog(str(g.get("active_set"))))
             valid = tuple(g.get("valid_intentions", []))
@@ -529,6 +532,24 @@ class GuardianRecorder(_Closing):
                                               colors=[GUARDED if drawn["inside"] else FAILSAFE],
                                               labels=[f"ego {drawn['speed']:.1f} m/s, {drawn['gap']:.1f} m behind "
                                                       f"{drawn['lead']} at {drawn['lead_speed']:.1f} m/s"]))
+
+    def _lanes(self, env, record: dict) -> None:
+        """On a straight road: the lanes the first guarded car holds (green) and those whose entry the guardian
+        refused during the step (red: an entry judged not responsible, a meta lane change refused), 120 m of each ahead of it, in the followed frame (``road/follow/held``,
+        ``road/follow/refused``)."""
+        from guardian.model.roads import Road
+
+        cars, road = env.get_wrapper_attr("cars"), env.get_wrapper_attr("supervision").road
+        if not cars or not isinstance(road, Road):
+            return
+        refused = sorted({lane for d in cars[0].decisions for lane in d.refused}
+                         | ({cars[0].refused_lane} if cars[0].refused_lane is not None else set()))
+        for name, lanes, colour in (("held", record.get("lanes") or [], HELD), ("refused", refused, REFUSED)):
+            slots = [road.numbering.slot(lane) for lane in lanes if 1 <= lane <= road.n_lanes]
+            self.rec.log(f"road/follow/{name}", rr.Boxes2D(
+                centers=[[LANE_AHEAD / 2 - 10.0, k * road.lane_width] for k in slots],
+                half_sizes=[[LANE_AHEAD / 2, road.lane_width / 2 - 0.2]] * len(slots), colors=[colour] * len(slots),
+                labels=[f"lane {lane} {name}" for lane in lanes if 1 <= lane <= road.n_lanes], draw_order=1.0))
 
     def _inputs(self, car: int | None, g: dict) -> None:
         """One guarded car's proposed and applied inputs and its admissible bands."""

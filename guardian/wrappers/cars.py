@@ -12,7 +12,8 @@ from guardian.adapters.highway_env.monitor import no_counts
 
 class GuardedCar:
     """One guarded car: its vehicle, decision object and model monitor, the agent's last command, and what
-    happened to it in the current policy step (``decisions``, ``refused_meta``, ``monitor_counts``)."""
+    happened to it in the current policy step (``decisions``, ``refused_meta`` and the ITHA lane it named,
+    ``refused_lane``, ``monitor_counts``)."""
 
     def __init__(self, index: int, vehicle, action_type, guard, monitor):
         self.index, self.vehicle, self.action_type = index, vehicle, action_type
@@ -24,7 +25,7 @@ class GuardedCar:
 
     def new_step(self) -> None:
         """Forget the last policy step."""
-        self.decisions, self.refused_meta = [], None
+        self.decisions, self.refused_meta, self.refused_lane = [], None, None
         self.monitor_counts = no_counts()
 
     def decided(self, base, decision) -> None:

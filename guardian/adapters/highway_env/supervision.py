@@ -251,6 +251,8 @@ class RoadSupervision(_Supervision):
             ok, reason = car.guard.policy_lane_change(state, scene, target)
             if not ok:
                 car.refused_meta = f"lane change refused: {reason}"
+                if 0 <= target < self.road.n_lanes:
+                    car.refused_lane = self.road.numbering.itha(target)
             elif self.ordered and 0 <= target < self.road.n_lanes:
                 announced[id(car.vehicle)] = frozenset({self.road.numbering.itha(target)})
 

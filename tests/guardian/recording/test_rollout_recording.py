@@ -182,3 +182,34 @@ def test_the_recording_draws_the_invariant_sets_slice_at_the_state_now(tmp_path)
     assert all(vj <= vp for (_, vp), (_, vj) in zip(plain["edge"], jerky["edge"]))
     assert any(vj < vp - 1.0 for (_, vp), (_, vj) in zip(plain["edge"], jerky["edge"]))
     assert slice_of(BicycleGuardian(kin, GuardianConfig(), False), ego, []) is None
+
+
+def test_the_recording_draws_the_lanes_held_and_the_entries_refused():
+    """On a straight road: each step the lanes the guarded car holds (``road/follow/held``) and the lane whose
+    entry the guardian refused (``road/follow/refused``: a meta lane change asked into dense traffic), as the
+    step's record and the car say."""
+    from guardian.evaluation.rollouts import Rollout, make_env
+    from guardian.recording.rerun import GuardianRecorder
+
+    env = make_env(Rollout("highway-fast-v0", "random", action="meta", env_config={"vehicles_density": 2.5}))
+    recorder = GuardianRecorder.__new__(GuardianRecorder)   # its _lanes alone, into a list instead of a file
+    logged = {}
+    recorder.rec = type("Rec", (), {"log": lambda self, path, value, **kw: logged.setdefault(path, []).append(value)})()
+    road, refused_steps = None, 0
+    left = env.unwrapped.action_type.actions_indexes["LANE_LEFT"]
+    for episode in range(3):
+        env.reset(seed=episode)
+        road = env.get_wrapper_attr("supervision").road
+        for _ in range(20):
+            _, _, term, trunc, info = env.step(left)
+            g, car = info["guardian"], env.get_wrapper_attr("cars")[0]
+            recorder._lanes(env, g)
+            held = logged["road/follow/held"][-1].centers.as_arrow_array().to_pylist()
+            assert sorted(y for _, y in held) == sorted(road.numbering.slot(k) * road.lane_width for k in g["lanes"])
+            refused = logged["road/follow/refused"][-1].centers.as_arrow_array().to_pylist()
+            if g["refused_lane_change"] and car.refused_lane is not None:
+                assert [y for _, y in refused] == [road.numbering.slot(car.refused_lane) * road.lane_width]
+                refused_steps += 1
+            if term or trunc:
+                break
+    assert refused_steps > 0
