@@ -71,6 +71,14 @@ class _DecisionHash:
             self.h.update(repr(decision).encode())
 
 
+def _counts_json(counts: dict) -> bytes:
+    """An episode's counts as hashed: every count but the crash list (hashed with the decisions) and the counts that
+    were not measured (None): a count a newer tree adds as None (e.g. ``actuator_clipped`` without a jerk limit) is
+    the same episode, while a count that turns None, or appears with a value, changes the hash."""
+    kept = {k: v for k, v in counts.items() if k != "crashes" and v is not None}
+    return json.dumps(kept, sort_keys=True, default=str).encode()
+
+
 def sumo_hashes() -> dict:
     from guardian.adapters.sumo.network import HighwayNet, Traffic
     from guardian.evaluation.sumo import run_episode
@@ -87,8 +95,7 @@ def sumo_hashes() -> dict:
                                   guarded=guarded)
             hashed = _DecisionHash()
             counts = run_episode(setting, agent, 900 + i, recorder=hashed)
-            counts.pop("crashes")
-            hashed.h.update(json.dumps(counts, sort_keys=True, default=str).encode())
+            hashed.h.update(_counts_json(counts))
             out[f"sumo {road} {agent} guarded {guarded}"] = {"steps": hashed.decisions, "sha256": hashed.h.hexdigest()}
             print(f"  {list(out)[-1]}: {hashed.decisions} decisions", file=sys.stderr, flush=True)
     out.update(_through_the_service(nets["merge"]))
@@ -110,8 +117,7 @@ def _through_the_service(net) -> dict:
     with _service(argparse.Namespace(through_service=True)) as ask:
         counts = run_episode(SumoSetting(net=net, traffic=Traffic(car_following="IDM", sublane=True)), "random", 950,
                              recorder=hashed, ask=ask)
-    counts.pop("crashes")
-    hashed.h.update(json.dumps(counts, sort_keys=True, default=str).encode())
+    hashed.h.update(_counts_json(counts))
     run = "sumo merge random guarded 1, through the service"
     print(f"  {run}: {hashed.decisions} decisions, {counts['service_disagreements']} disagreements", file=sys.stderr)
     return {run: {"steps": hashed.decisions, "disagreements": counts["service_disagreements"],
