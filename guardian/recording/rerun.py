@@ -45,6 +45,27 @@ def follow_labels(rec, labelled) -> None:
 FLEET_SHOWN = 4   # guarded cars whose plots a recording of several opens on (every car's are in the file)
 SLICE_GAPS = np.linspace(0.0, 120.0, 61)   # [m] where the set's slice is drawn
 SLICE_VIEW = "the invariant set's slice: the ego's speed (up, m/s) against its gap (m) to the nearest car ahead"
+OVERTAKE_SLICE_VIEW = ("the active set's slice at the lateral position and lead speed now: the ego's speed (up, m/s) "
+                       "against the lead's distance ahead h (m)")
+OVERTAKE_WINDOW = (np.array([0.0, -100.0]), np.array([45.0, 150.0]))   # (v_ex, h) drawn
+
+
+def overtake_slice_of(guard, x) -> dict:
+    """What a recording draws of the overtake guardian's active set at the overtake state ``x = (v_ex, y_e, h,
+    v_Lx)`` (``PointMassGuardian``): each piece of the set whose box holds ``(y_e, v_Lx)``, sliced there, as a polygon
+    in ``(v_ex, h)`` (``rcis.planar.polygon``, clipped to ``OVERTAKE_WINDOW``), and whether ``x`` is inside."""
+    from rcis.planar import polygon
+
+    name = guard.lead.active_set
+    region = guard.lead.library.region(name)
+    lower, upper = region.boxes()
+    pieces = []
+    for P, lo, hi in zip(region, lower, upper):
+        if lo[1] <= x[1] <= hi[1] and lo[3] <= x[3] <= hi[3]:
+            V = polygon(P.slice([1, 3], [x[1], x[3]]), OVERTAKE_WINDOW)
+            if len(V):
+                pieces.append(V)
+    return {"set": name, "pieces": pieces, "inside": bool(region.contains(np.asarray(x, float)))}
 
 
 def slice_of(guard, ego, leaders) -> dict | None:
@@ -100,7 +121,11 @@ def rollout_blueprint(base, overtake: bool, cars: int = 1):
         "road (ego green, lead amber, traffic blue; ego magenta when overridden, red on fail-safe), following the ego"
         if cars == 1 else "road (guarded cars green, magenta when overridden, red on fail-safe; traffic blue), "
                           "following car 0"), visual_bounds=bounds)
-    if not overtake:   # highway-env's roads: the car-following set's slice below the road
+    if overtake:   # the active set's slice below the road
+        road = rrb.Vertical(road, rrb.Spatial2DView(
+            origin="/slice", name=OVERTAKE_SLICE_VIEW,
+            visual_bounds=rrb.VisualBounds2D(x_range=[-60.0, 120.0], y_range=[-45.0, 5.0])), row_shares=[3, 2])
+    else:   # highway-env's roads: the car-following set's slice below the road
         road = rrb.Vertical(road, rrb.Spatial2DView(
             origin="/slice", name=SLICE_VIEW + (" (car 0)" if cars > 1 else ""),
             visual_bounds=rrb.VisualBounds2D(x_range=[-5.0, SLICE_GAPS[-1] + 5.0], y_range=[-45.0, 5.0])),
@@ -417,7 +442,9 @@ class GuardianRecorder(_Closing):
       guarded): the car-following set's slice at the state now (``slice_of``): ``slice/edge`` the highest speed the
       set allows at each gap behind the nearest car ahead at that car's speed (and, with an actuator, the ego's
       acceleration), ``slice/ego`` where the ego is (green inside, red outside), ``slice/h_min`` the least gap;
-      speed is drawn upwards (negative y). With several
+      speed is drawn upwards (negative y). On the overtake scenarios ``slice/set`` is the active set sliced at the
+      lateral position and lead speed now (``overtake_slice_of``: each piece that holds them, a polygon in
+      ``(v_ex, h)``) and ``slice/ego`` the state in it. With several
       guarded cars (``--controlled N``): ``road/guarded`` the cars labelled ``car K``, the view follows car 0, and
       each car's series below are under ``cars/car_K/`` (its events name it)
     * ``inputs/{proposed,applied}/{throttle,steering}`` time series (continuous and meta agents alike:
@@ -489,6 +516,8 @@ class GuardianRecorder(_Closing):
         if g and lead is None:
             self._slice(env, (g["agents"][0] if fleet else g))
             self._lanes(env, (g["agents"][0] if fleet else g))
+        elif g and not fleet:
+            self._overtake_slice(env)
         if g and not fleet:
             rec.log("guardian/active_set", rr.TextLog(str(g.get("active_set"))))
             valid = tuple(g.get("valid_intentions", []))
@@ -532,6 +561,27 @@ class GuardianRecorder(_Closing):
                                               colors=[GUARDED if drawn["inside"] else FAILSAFE],
                                               labels=[f"ego {drawn['speed']:.1f} m/s, {drawn['gap']:.1f} m behind "
                                                       f"{drawn['lead']} at {drawn['lead_speed']:.1f} m/s"]))
+
+    def _overtake_slice(self, env) -> None:
+        """The overtake guardian's active set sliced at the state now (``overtake_slice_of``)."""
+        from guardian.decide.overtake import PointMassGuardian
+
+        cars = env.get_wrapper_attr("cars")
+        if not cars or not isinstance(cars[0].guard, PointMassGuardian):
+            return
+        x = env.unwrapped.overtake_state()
+        drawn = overtake_slice_of(cars[0].guard, x)
+        self.rec.log("slice/set", rr.LineStrips2D([[[h, -v] for v, h in np.vstack([V, V[:1]])] for V in drawn["pieces"]],
+                                                  colors=[ADMISSIBLE] * len(drawn["pieces"])))
+        self.rec.log("slice/ego", rr.Points2D([[float(x[2]), -float(x[0])]], radii=1.2,
+                                              colors=[GUARDED if drawn["inside"] else FAILSAFE],
+                                              labels=[f"ego {x[0]:.1f} m/s, lead {x[2]:.1f} m ahead at {x[3]:.1f} m/s; "
+                                                      f"{drawn['set']}: {len(drawn['pieces'])} pieces here"]))
+        self.rec.log("slice/axes", rr.LineStrips2D([[[-60.0, 0.0], [120.0, 0.0]], [[0.0, 0.0], [0.0, -40.0]]],
+                                                   colors=[APPLIED]), static=True)
+        self.rec.log("slice/ticks", rr.Points2D([[0.0, 0.0], [120.0, 0.0], [-60.0, 0.0], [0.0, -20.0], [0.0, -40.0]],
+                                                radii=0.3, colors=[APPLIED] * 5,
+                                                labels=["0", "h 120 m", "-60 m", "20 m/s", "40 m/s"]), static=True)
 
     def _lanes(self, env, record: dict) -> None:
         """On a straight road: the lanes the first guarded car holds (green) and those whose entry the guardian

@@ -232,3 +232,32 @@ def test_an_unbounded_lp_highs_cannot_decide_is_decided_inside_a_box():
     ref = linprog(-d, A_ub=A, b_ub=b, bounds=[(None, None)] * 3)
     res = lp.maximize(d)
     assert ref.status == 0 and res.status == "optimal" and abs(res.value + ref.fun) < 1e-7
+
+
+def test_a_2d_polygon_by_clipping_is_the_polyhedron_cut_to_its_window():
+    """``rcis.planar.polygon`` (no LP, for drawing a slice every step) against the LP-checked generators of the
+    polyhedron intersected with the window: the same area and every vertex inside; empty where it is empty."""
+    from scipy.spatial import ConvexHull
+
+    from rcis.planar import polygon
+
+    rng = np.random.default_rng(7)
+    window = (np.array([-20.0, -20.0]), np.array([20.0, 20.0]))
+    compared = 0
+    for _ in range(300):
+        m = int(rng.integers(3, 9))
+        P = Polyhedron(rng.normal(size=(m, 2)), rng.uniform(-0.5, 2.0, size=m))
+        V = polygon(P, window)
+        Q = P.intersect(Polyhedron.from_box(*window))
+        if Q.is_empty():
+            assert len(V) == 0
+            continue
+        G, _ = Q.generators()
+        if len(G) < 3 or ConvexHull(G).volume < 1e-9:
+            continue
+        compared += 1
+        assert np.all(Q.contains(V, tol=1e-7))
+        assert ConvexHull(V).volume == pytest.approx(ConvexHull(G).volume, rel=1e-6)
+    assert compared > 100
+    with pytest.raises(ValueError, match="dimension 3"):
+        polygon(Polyhedron.from_box([0, 0, 0], [1, 1, 1]), window)

@@ -1,5 +1,6 @@
 """Rollout recordings a user opens: the file wherever asked, the view on the action."""
 import gymnasium as gym
+import numpy as np
 import highway_env  # noqa: F401
 
 
@@ -213,3 +214,21 @@ def test_the_recording_draws_the_lanes_held_and_the_entries_refused():
             if term or trunc:
                 break
     assert refused_steps > 0
+
+
+def test_an_overtake_recording_draws_the_active_sets_slice_with_the_state_in_it(tmp_path):
+    """Two cars (Section 6.5): every step the active set sliced at the lateral position and the lead's speed now,
+    one polygon per piece that holds them, and the state inside it (green) as the guardian keeps it (Theorem 4); the
+    point lies in a drawn polygon exactly when the set holds it."""
+    from matplotlib.path import Path as Polygon
+
+    from guardian.evaluation.rollouts import Rollout, highway_rollouts
+
+    rrd = tmp_path / "overtake.rrd"
+    r = highway_rollouts(Rollout("guardian/Overtake-v0", "random", env_config={"duration": 4}), 1, 0, rerun_path=rrd)
+    points, sets = slice_chunks(rrd, "/slice/ego"), slice_chunks(rrd, "/slice/set")
+    colours = slice_chunks(rrd, "/slice/ego", (":colors",))
+    assert len(points) == len(sets) == r["steps"] > 0 and r["starts_outside"] == 0
+    assert {c for (c,) in colours} == {0x28B43CFF}
+    for (point,), polygons in zip(points, sets):
+        assert polygons and any(Polygon(np.array(poly)).contains_point(point, radius=1e-6) for poly in polygons)
