@@ -33,13 +33,13 @@ class _LimitedStep:
         self.original = type(vehicle).step.__get__(vehicle)
 
     def __call__(self, dt: float) -> None:
-        v, fall = self.vehicle, self.world.actuator.jerk * dt
+        v = self.vehicle
         if v.crashed:   # highway-env brakes a crashed car itself (Vehicle.clip_actions): no actuator is modelled
             self.original(dt)
             v.applied_acceleration = float(v.action["acceleration"])
             return
         asked, last = float(v.action["acceleration"]), v.applied_acceleration
-        applied = min(max(asked, last - fall), last + fall)
+        applied = self.world.actuator.follows(last, asked, dt)
         if applied != asked:
             self.world.clipped += 1
         v.action["acceleration"] = applied

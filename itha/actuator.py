@@ -69,6 +69,13 @@ class Actuator:
             raise ValueError("Actuator.lag is not implemented: a first-order lag brakes exponentially and the set "
                              "has no exact least gap for it; declare the lag as a delay and a jerk bound instead")
 
+    def follows(self, last: float, asked: float, dt: float) -> float:
+        """The acceleration a held-profile actuator applies over a step of ``dt`` when asked for ``asked`` after
+        applying ``last``: ``asked`` limited to within ``jerk dt`` of ``last`` (the worlds' rule: highway-env's
+        ``envs.actuator.JerkLimit``, the SUMO episodes' model)."""
+        fall = self.jerk * dt
+        return min(max(asked, last - fall), last + fall)
+
 
 # ---- piecewise-polynomial motion -------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -369,6 +376,7 @@ class RateLimitedEgo:
         self.S, self.v, self.a = S, v, a
         self.params = S.params
         self.commands = S.reach(a)
+        self._answers = {}   # (h, vL) -> speeds: a decision asks the free road and each leader several times
 
     def next_speed(self, command: float) -> float:
         return max(self.v + self.params.dt * command, 0.0)
@@ -379,6 +387,12 @@ class RateLimitedEgo:
                                            h, vL, command) >= p.h_min + INNER
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
+        key = (h, vL)
+        if key not in self._answers:
+            self._answers[key] = self._speed_intervals(h, vL)
+        return list(self._answers[key])
+
+    def _speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         p = self.params
         lo, hi = self.commands
         if lo > hi:

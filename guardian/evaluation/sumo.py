@@ -290,8 +290,7 @@ class _Episode:
             self.recorder.decision(car.name, proposed, applied, d if self.guarded else None)
         a = float(applied[0])
         if self.actuator is not None:   # the actuator follows at most jerk * dt from the last; the speed stops at 0
-            fall = self.actuator.jerk * setting.step_length
-            limited = min(max(a, car.accel - fall), car.accel + fall)
+            limited = self.actuator.follows(car.accel, a, setting.step_length)
             out["actuator_clipped"] += limited != a
             a = car.accel = limited
         car.expected = self.model.step(me.x, me.y, me.heading, me.speed, a, float(applied[1]))

@@ -551,11 +551,7 @@ class GuardianRecorder(_Closing):
         h_min, top = cars[0].guard.config.h_min, float(SLICE_GAPS[-1])
         self.rec.log("slice/h_min", rr.LineStrips2D([[[h_min, 0.0], [h_min, -45.0]]], colors=[FAILSAFE],
                                                     labels=[f"h_min {h_min:g} m"]))
-        self.rec.log("slice/axes", rr.LineStrips2D([[[0.0, 0.0], [top, 0.0]], [[0.0, 0.0], [0.0, -40.0]]],
-                                                   colors=[APPLIED]), static=True)
-        self.rec.log("slice/ticks", rr.Points2D([[0.0, 0.0], [top, 0.0], [0.0, -20.0], [0.0, -40.0]], radii=0.3,
-                                                colors=[APPLIED] * 4,
-                                                labels=["0", f"gap {top:g} m", "20 m/s", "40 m/s"]), static=True)
+        self._slice_axes(0.0, top, "gap")
         self.rec.log("slice/edge", rr.LineStrips2D([[[h, -v] for h, v in drawn["edge"]]], colors=[ADMISSIBLE]))
         self.rec.log("slice/ego", rr.Points2D([[shown, -drawn["speed"]]], radii=1.2,
                                               colors=[GUARDED if drawn["inside"] else FAILSAFE],
@@ -577,11 +573,16 @@ class GuardianRecorder(_Closing):
                                               colors=[GUARDED if drawn["inside"] else FAILSAFE],
                                               labels=[f"ego {x[0]:.1f} m/s, lead {x[2]:.1f} m ahead at {x[3]:.1f} m/s; "
                                                       f"{drawn['set']}: {len(drawn['pieces'])} pieces here"]))
-        self.rec.log("slice/axes", rr.LineStrips2D([[[-60.0, 0.0], [120.0, 0.0]], [[0.0, 0.0], [0.0, -40.0]]],
+        self._slice_axes(-60.0, 120.0, "h")
+
+    def _slice_axes(self, left: float, right: float, distance: str) -> None:
+        """The slice view's axes: the distance from ``left`` to ``right`` [m] along x, the speed 0-40 m/s upwards."""
+        ticks = [([0.0, 0.0], "0"), ([right, 0.0], f"{distance} {right:g} m")] + (
+            [([left, 0.0], f"{left:g} m")] if left < 0 else []) + [([0.0, -20.0], "20 m/s"), ([0.0, -40.0], "40 m/s")]
+        self.rec.log("slice/axes", rr.LineStrips2D([[[left, 0.0], [right, 0.0]], [[0.0, 0.0], [0.0, -40.0]]],
                                                    colors=[APPLIED]), static=True)
-        self.rec.log("slice/ticks", rr.Points2D([[0.0, 0.0], [120.0, 0.0], [-60.0, 0.0], [0.0, -20.0], [0.0, -40.0]],
-                                                radii=0.3, colors=[APPLIED] * 5,
-                                                labels=["0", "h 120 m", "-60 m", "20 m/s", "40 m/s"]), static=True)
+        self.rec.log("slice/ticks", rr.Points2D([p for p, _ in ticks], radii=0.3, colors=[APPLIED] * len(ticks),
+                                                labels=[name for _, name in ticks]), static=True)
 
     def _lanes(self, env, record: dict) -> None:
         """On a straight road: the lanes the first guarded car holds (green) and those whose entry the guardian
