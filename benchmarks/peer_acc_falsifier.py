@@ -17,7 +17,8 @@ path given by ``--peer`` (a checkout or ``git archive`` of that repository) and 
   and ``monte_carlo`` (the lead's inputs drawn from a beta distribution, stopping at the first collision).
 * the proposers (``acc``): ``pi``, ``extended_pi``, ``idm`` and ``collision_avoidance`` with the peer's
   parameters (``config.yaml``), behind the peer's interface ``AccFactory.acc_control(v_lead, v_acc, s_x_lead,
-  s_x_acc, a_acc) -> a``. The repository has no provably safe ACC ("safe-acc"): none in any of its commits.
+  s_x_acc, a_acc) -> a``. The repository has no provably safe ACC ("safe-acc"): none in any of its commits; that
+  is CommonRoad/safe-acc, a repository of its own (``--safe-acc``, below).
 * its verdicts: a start is safe when the gap exceeds ``safe_distance`` (both cars brake as hard as their jerk
   allows from their accelerations now; ACC reaction time 0); a state is unsafe when the gap is at most
   ``unsafe_distance`` (that braking of both meets at some step's end; ``v_col`` = 0); a collision is a gap <= 0
@@ -33,6 +34,12 @@ does what the vehicle can (jerk, bounds, standstill), as for every ACC of the pe
   acceleration could jump.
 * ``actuated``: ``ActuatedSet`` with ``Actuator(jerk=10, profile="hold")`` (the peer's held, rate-limited
   acceleration), state ``(v, h, v_L, a)``, ``admissible_commands``.
+* ``safe_acc``: CommonRoad/safe-acc's ``SafeACC.execute`` (Althoff, Maierhofer, Pek, IEEE T-IV 2020; imported from
+  the path given by ``--safe-acc``, never copied here): its inevitable-collision test, its safety layer (the
+  proposal kept when its safe distance holds a step on) and its emergency profile, on the peer's vehicle, its
+  standstill distance set to ``--h-min`` (``SafeAccGuard``). Its emergency under way is carried along each
+  trajectory on the peer's nodes. Its own nominal ACC (a QP) is the proposer ``safe_acc_nominal`` (behind
+  ``safe_acc`` only); its starts are those beyond its safe distance.
 
 Both sets use the peer's vehicle: dt 0.1, U = [-8, 1.5], D = [d_min, d_max] = [-8, 1.5] (the lead's bounds in
 config.yaml; our lead may brake at -8 at once, the peer's ramps at -10 m/s^3, so ours is the stronger lead),
@@ -59,7 +66,8 @@ from a state inside the guardian's set to one outside (``exits``; the first is r
 prediction), and the peer's own verdict (``falsified``: the forward search reached an unsafe node, the backward
 search found a safe start that ends unsafe, Monte Carlo collided). What the guardian costs, over the
 controller's calls on those states: overrides (the command differs from the proposal), ``outside`` (calls with
-no admissible command: the state outside the set, hardest braking), the mean time gap h/v (v > 1 m/s) and the
+no admissible command: the state outside the set, hardest braking; safe-acc: its emergency profile or its
+inevitable-collision braking), the mean time gap h/v (v > 1 m/s) and the
 mean |jerk| |a+ - a|/dt. Beside it: the share of the peer's own start distribution (ACC at 0 m/s^2, speeds
 0-50.8 m/s, gap up to 50 m) that each criterion accepts. The searches stop at their first falsification, so the
 costs of different rows are over different trees.
@@ -74,12 +82,17 @@ each run below takes ~25 min, ~7 min, ~3 min on a loaded 2-core machine):
         --backward-seconds 20
     cd /tmp && python /work/main/benchmarks/peer_acc_falsifier.py --peer /tmp/peer/src --seeds 3 \\
         --kinds monte_carlo forward --proposers pi extended_pi --guardians actuated --h-min 0.001
+    cd /tmp && python /work/main/benchmarks/peer_acc_falsifier.py --peer /tmp/peer/src --safe-acc /tmp/safe-acc \\
+        --guardians safe_acc actuated plain --kinds forward monte_carlo --seeds 7 --seed0 100
 
-    options: [--seeds N] [--seed0 S] [--kinds ...] [--proposers ...] [--guardians ...] [--nodes N] [--steps N]
+    options: [--safe-acc DIR] [--seeds N] [--seed0 S] [--kinds ...] [--proposers ...] [--guardians ...]
+             [--nodes N] [--steps N]
              [--backward-nodes N] [--backward-steps N] [--backward-seconds S] [--starts own|actuated]
              [--h-min M] [--share-samples N] [--json] [--save FILE]
 
-The peer's copy: ``git --git-dir=<mirror> archive HEAD | tar -x -C /tmp/peer/src``. Needs numpy, scipy,
+The peer's copy: ``git --git-dir=<mirror> archive HEAD | tar -x -C /tmp/peer/src`` (safe-acc's likewise; it needs
+qpsolvers and quadprog, and its recapturing controllers' data, absent from its mirror, is not used: the searches
+have one lead and no cut-in). Needs numpy, scipy,
 commonroad-vehicle-models (the peer imports the 2019 module names ``parameters_vehicle2``, ``init_KS``,
 ``vehicleDynamics_KS`` and ``vehicleParameters``; they are mapped onto the package ``vehiclemodels``, the same
 functions renamed) and ruamel.yaml (imported by the peer; ``config.yaml`` is read with ruamel's current API,
@@ -107,8 +120,8 @@ from itha.actuator import ActuatedSet, Actuator
 from itha.car_following import CarFollowingParams, MaximalSet, admissible_inputs
 
 KINDS = ("forward", "backward", "monte_carlo")
-PROPOSERS = ("pi", "extended_pi", "idm", "collision_avoidance")
-GUARDIANS = ("plain", "unaware", "actuated")
+PROPOSERS = ("pi", "extended_pi", "idm", "collision_avoidance", "safe_acc_nominal")
+GUARDIANS = ("plain", "unaware", "actuated", "safe_acc")
 H_MIN = 0.1
 OVERRIDE_TOL = 1e-9
 STALL_FACTOR = 3   # a search that moves more than this many times its budget of states is stopped as stalled
@@ -172,6 +185,163 @@ def load_peer(path: str) -> types.SimpleNamespace:
                                  originals={}, h_min=H_MIN)
 
 
+def load_safe_acc(path: str, peer) -> types.SimpleNamespace:
+    """Import CommonRoad/safe-acc's ``SafeACC`` and its configuration from ``path``. Both repositories name their
+    packages ``acc`` and ``common`` (namespace packages): safe-acc's are imported with the peer's path and modules
+    out of the way, and the peer's are put back. Its ``common.vehicle`` (typing only here; it imports the 2020
+    commonroad-io ``commonroad.geometry.shape``/``trajectory.State``) is stubbed: the vehicles are ``_SafeAccCar``."""
+    path = os.path.abspath(path)
+    if not os.path.isfile(os.path.join(path, "acc", "safe_acc.py")):
+        raise SystemExit(f"--safe-acc {path}: not a copy of CommonRoad/safe-acc (no acc/safe_acc.py)")
+    ours = ("acc", "common")
+    mine = lambda name: name in ours or name.startswith(("acc.", "common."))  # noqa: E731
+    saved = {k: v for k, v in sys.modules.items() if mine(k)}
+    saved_path = list(sys.path)
+    for k in saved:
+        del sys.modules[k]
+    sys.path[:] = [path] + [p for p in sys.path if os.path.abspath(p or ".") != peer.path]
+    try:
+        import common
+        stub = types.ModuleType("common.vehicle")
+        stub.Vehicle = object
+        sys.modules["common.vehicle"] = common.vehicle = stub
+        from acc.nominal_acc import NominalACC
+        from acc.safe_acc import SafeACC
+        from acc.safety_layer import SafetyLayer
+        from common import configuration, util_motion
+    finally:
+        sys.path[:] = saved_path
+        for k in [k for k in sys.modules if mine(k)]:
+            del sys.modules[k]
+        sys.modules.update(saved)
+    from ruamel.yaml import YAML
+    with open(os.path.join(path, "config.yaml")) as f:
+        config = YAML(typ="safe").load(f)
+    return types.SimpleNamespace(path=path, SafeACC=SafeACC, SafetyLayer=SafetyLayer, NominalACC=NominalACC,
+                                 configuration=configuration, util_motion=util_motion, config=config)
+
+
+class _SafeAccCar:
+    """The one vehicle safe-acc's ``SafeACC.execute`` reads, at its time step 0: longitudinal state, front and rear."""
+
+    id = 1
+
+    def __init__(self, front: float, rear: float, v: float, a: float):
+        self.states_lon = {0: types.SimpleNamespace(s=front, v=v, a=a)}
+        self._front, self._rear = front, rear
+        self.safe_distance_list = {0: 0.0}   # read only by its nominal ACC's QP, which the proposer replaces
+
+    def front_position(self, time_step: int) -> float:
+        return self._front
+
+    def rear_position(self, time_step: int) -> float:
+        return self._rear
+
+
+class _Proposal:
+    """safe-acc's nominal controller slot (``calculate_input``), filled by the proposer: safe-acc's design
+    exchanges the nominal ACC freely, its safety layer and fail-safe carry the guarantee. None: the nominal found no
+    input (safe-acc's own QP), which its safety layer answers with the emergency profile."""
+
+    value: float | None = 0.0
+
+    def calculate_input(self, *args) -> float:
+        return self.value
+
+
+def _numpy2_nominal(NominalACC):
+    """safe-acc's ``NominalACC`` with its jerk weight handed to its QP as a number: its ``motion_equations`` returns
+    it as a 1-element array, which numpy >= 2 refuses to store in a matrix cell (``rr[i, i] = r``); and an infeasible
+    QP answered None as safe-acc's code meant: qpsolvers >= 2 returns None where the qpsolvers of 2020 raised, and
+    its ``except`` turned that into None, while today it indexes the None (a TypeError). Nothing else differs."""
+    class Nominal(NominalACC):
+        @staticmethod
+        def motion_equations(*args):
+            a_d, b_d, q, r = NominalACC.motion_equations(*args)
+            return a_d, b_d, q, float(np.asarray(r).reshape(-1)[0])
+
+        def calculate_input(self, *args):
+            try:
+                return super().calculate_input(*args)
+            except TypeError:
+                return None
+    return Nominal
+
+
+class SafeAccGuard:
+    """CommonRoad/safe-acc's provably safe ACC over a proposer: its own code (``SafeACC.execute``: the test for an
+    inevitable collision state, the safety layer's check of the proposal against its safe distance at the next
+    step, the emergency profile that gradually engages full braking), on the peer's vehicle.
+
+    Parameters: the peer's ACC bounds (a in [-8, 1.5], jerk +-10, v_max of vehicle 2, no reaction time, no
+    acceleration error ``a_corr``), the lead's (a_min -8, speeds 0 to vehicle 2's v_max), safe-acc's own emergency
+    profile (config.yaml: ten comfortable jerk steps, then ``num_steps_fb`` steps of ``j_min``), and its standstill
+    distance ``const_dist_offset`` set to this run's ``h_min`` (safe-acc's default is 0.5 m; ours 0.1 m), so both
+    guardians keep the same least gap. One deviation: an emergency that lasts beyond its profile's 200 steps holds
+    the profile's last acceleration (safe-acc would index past the end)."""
+
+    def __init__(self, sa, peer, h_min: float):
+        cfg = peer.config
+        acc, lead = cfg["acc_vehicle_param"], cfg["lead_vehicle_param"]
+        c = peer.configuration
+        v_max = float(c.create_acc_vehicle_param(dict(acc))["dynamics_param"].longitudinal.v_max)
+        v_max_lead = float(c.create_lead_vehicle_param(dict(lead))["dynamics_param"].longitudinal.v_max)
+        self.dt = float(cfg["simulation_param"]["dt"])
+        self.ego = {"a_min": float(acc["a_min"]), "a_max": float(acc["a_max"]), "a_corr": 0.0,
+                    "j_max": float(acc["j_max"]), "j_min": float(acc["j_min"]), "t_react": 0.0, "v_min": 0.0,
+                    "v_max": v_max}
+        self.other = {"a_min": float(lead["a_min"]), "a_max": float(lead["a_max"]), "v_min": 0.0, "v_max": v_max_lead,
+                      "j_min": float(lead["j_min"]), "j_max": float(lead["j_max"])}
+        own = sa.config["acc_param"]
+        acc_param = sa.configuration.create_acc_param(
+            {"common": dict(own["common"], const_dist_offset=h_min),
+             "emergency": {"emergency_profile": list(own["emergency"]["emergency_profile"]),
+                           "num_steps_fb": own["emergency"]["num_steps_fb"]}}, self.ego["j_min"])
+        sim = {"dt": self.dt, "verbose_mode": False}
+        self.profile = acc_param["emergency"]["emergency_profile"]
+        self.h_min, self.util = h_min, sa.util_motion
+        self.nominal = _Proposal()
+        self.layer = sa.SafetyLayer(self.nominal, sim, self.ego, acc_param, self.other)
+        self.safe_acc = sa.SafeACC(None, self.layer, None, None, sim, self.ego, acc_param, self.other)
+        self.own_nominal = _numpy2_nominal(sa.NominalACC)(sim, own["nominal_acc"], dict(self.ego, fov=math.inf))
+
+    def nominal_acceleration(self, x) -> float | None:
+        """safe-acc's own nominal ACC (its QP over a 6 s horizon keeping the safe distance), None where it finds no
+        solution."""
+        v, h, vL, a = x
+        return self.own_nominal.calculate_input(a, v, vL, 0.0, h, self.safe_distance(v, a, vL))
+
+    def safe_distance(self, v: float, a: float, vL: float) -> float:
+        """safe-acc's safe distance (ego executing its emergency profile, the lead braking at ``a_min``)."""
+        e, o = self.ego, self.other
+        return self.util.safe_distance_profile_based(0.0, v, a, 0.0, vL, self.dt, e["t_react"], e["a_min"], e["a_max"],
+                                                     e["j_max"], e["v_min"], e["v_max"], o["a_min"], o["v_min"],
+                                                     o["v_max"], e["a_corr"], self.h_min, self.profile, 0)
+
+    def accepts(self, x) -> bool:
+        v, h, vL, a = x
+        return h > self.safe_distance(v, a, vL)
+
+    def decide(self, proposal: float, x, emergency) -> tuple[float, tuple]:
+        """safe-acc's acceleration at state ``x = (v, h, v_L, a)`` given the proposal and the emergency under way
+        (``(steps so far, its acceleration profile)``); returns it with the emergency after this step."""
+        v, h, vL, a = x
+        layer = self.layer
+        if proposal is not None and math.isnan(proposal):
+            proposal = None
+        layer.emergency_step_counter, layer.activated_emergency_acc_profile = emergency or (0, None)
+        profile = layer.activated_emergency_acc_profile
+        if profile is not None and layer.emergency_step_counter >= len(profile):
+            profile = layer.activated_emergency_acc_profile = profile + [profile[-1]] * (
+                layer.emergency_step_counter - len(profile) + 1)
+        self.nominal.value = proposal
+        sa = self.safe_acc
+        sa.strategy_list, sa.emergency_maneuver_activity = [], [0]   # its logs, kept short
+        sa.num_vehicles.clear()
+        out = sa.execute([_SafeAccCar(h, h, vL, 0.0)], [], _SafeAccCar(0.0, 0.0, v, a), 0)
+        return float(out), (layer.emergency_step_counter, layer.activated_emergency_acc_profile)
+
+
 def peer_params(peer, kind: str, proposer: str, budget: dict) -> dict:
     """The peer's parameter dictionaries (config.yaml, through its own ``create_*``), with this run's budget."""
     cfg = copy.deepcopy(peer.config)
@@ -210,8 +380,10 @@ def guardian_sets(peer) -> tuple[ActuatedSet, MaximalSet, CarFollowingParams]:
 class Run:
     """What one search did: the states the peer moved forwards from accepted starts, the controller's calls."""
 
-    def __init__(self, guardian: str, starts: str, A: ActuatedSet, S: MaximalSet, cap: float = math.inf):
-        self.guardian, self.starts, self.A, self.S, self.cap = guardian, starts, A, S, cap
+    def __init__(self, guardian: str, starts: str, A: ActuatedSet, S: MaximalSet, cap: float = math.inf,
+                 guard: "SafeAccGuard | None" = None):
+        self.guardian, self.starts, self.A, self.S, self.cap, self.guard = guardian, starts, A, S, cap, guard
+        self.emergency = None           # safe-acc's emergency under way where no node carries it (backward search)
         self.recording = False          # a trajectory from an accepted start is being simulated
         self.root = None                # its start node (backward: where the re-simulation begins)
         self.states = 0
@@ -227,13 +399,16 @@ class Run:
 
     # the start criterion
     def accepts(self, node) -> bool:
-        """The peer's criterion (gap > safe_distance), and the guardian's set unless plain."""
+        """The peer's criterion (gap > safe_distance), and the guardian's set unless plain (safe-acc: its safe
+        distance)."""
         if not node.delta_s > node.safe_distance:
             return False
         which = self.guardian if self.starts == "own" else "actuated"
         if which == "plain":
             return True
         x = state_of(node)
+        if which == "safe_acc":
+            return self.guard.accepts(x)
         if which == "actuated":
             return self.A.contains(x)
         return bool(self.S.contains(x[:3])[0])
@@ -253,7 +428,7 @@ class Run:
         self.states += 1
         if self.states > self.cap:
             raise Stalled
-        if self.guardian != "plain" and node.parent is not None and self.inside(node.parent) \
+        if self.guardian in ("unaware", "actuated") and node.parent is not None and self.inside(node.parent) \
                 and not self.inside(node):
             self.exits += 1
             if self.first_exit is None:
@@ -312,10 +487,17 @@ class Guarded:
                        acc_vehicle_param["j_max"])
 
     def acc_control(self, v_lead, v_acc, s_x_lead, s_x_acc, a_acc):
-        proposal = float(self.inner.acc_control(v_lead, v_acc, s_x_lead, s_x_acc, a_acc))
-        run, out = self.run, proposal
+        run = self.run
         x = (max(float(v_acc), 0.0), float(s_x_lead - s_x_acc), max(float(v_lead), 0.0), float(a_acc))
-        if run.guardian != "plain":
+        if self.inner is None:   # safe-acc's own nominal ACC (no answer: NaN, for its safety layer)
+            nominal = run.guard.nominal_acceleration(x)
+            proposal = math.nan if nominal is None else float(nominal)
+        else:
+            proposal = float(self.inner.acc_control(v_lead, v_acc, s_x_lead, s_x_acc, a_acc))
+        out = proposal
+        if run.guardian == "safe_acc":
+            out = self.safe_acc(proposal, x)
+        elif run.guardian != "plain":
             if run.guardian == "actuated":
                 allowed = run.A.admissible_commands(x)
             else:
@@ -337,6 +519,23 @@ class Guarded:
         run.jerks.append(abs(out - x[3]) / self.dt)
         return out
 
+    def safe_acc(self, proposal: float, x) -> float:
+        """safe-acc decides; its emergency under way rides on the peer's nodes (a tree search steps many
+        trajectories in turn: the emergency a node's state inherits is the one its parent's step left)."""
+        run, node = self.run, self.peer.current_node
+        incoming = run.emergency if node is None else getattr(node.parent, "_safe_acc_emergency", None)
+        command, emergency = run.guard.decide(proposal, x, incoming)
+        if node is None:
+            run.emergency = emergency
+        else:
+            node._safe_acc_emergency = emergency
+        run.outside += run.recording and (emergency[0] > 0 or command == run.guard.ego["a_min"])
+        a_min, a_max, dt, v_max, j_min, j_max = self.limits
+        out = float(self.peer.utility_fcts.check_feasibility(command, x[0], a_min, a_max, dt, v_max, x[3], j_min,
+                                                             j_max))
+        run.overrides += run.recording and abs(out - proposal) > OVERRIDE_TOL
+        return out
+
 
 # ---- hooks into the peer's searches --------------------------------------------------------------------
 def install_hooks(peer):
@@ -349,9 +548,12 @@ def install_hooks(peer):
     o["forward_simulation"] = peer.rrt.RRT.forward_simulation
     o["init_nodes_forward"] = peer.utility_search.init_nodes_forward
     o["check_backward"] = peer.backward.check_unsafe_node_reached
+    o["acc_input_forward"] = peer.utility_fcts.acc_input_forward
+    peer.current_node = None
 
     def create(cls, simulation_param, acc_vehicle_param, acc_param):
-        inner = o["create"](cls, simulation_param, acc_vehicle_param, acc_param)
+        inner = None if peer.current.proposer == "safe_acc_nominal" else \
+            o["create"](cls, simulation_param, acc_vehicle_param, acc_param)
         return Guarded(inner, peer.current, peer, acc_vehicle_param, simulation_param["dt"])
 
     def forward_simulation(self, steering_velocity, acceleration, *args, **kw):
@@ -393,6 +595,14 @@ def install_hooks(peer):
     def store_results(end_node, *args, **kw):
         peer.current.end_node = end_node
 
+    def acc_input_forward(acc_planner, node, *args, **kw):
+        """The peer's ACC step from ``node``, with the node known to a controller that keeps a state (safe-acc)."""
+        peer.current_node = node
+        try:
+            return o["acc_input_forward"](acc_planner, node, *args, **kw)
+        finally:
+            peer.current_node = None
+
     peer.acc_interface.AccFactory.create = classmethod(create)
     peer.rrt.RRT.forward_simulation = forward_simulation
     for mod in (peer.forward, peer.monte_carlo):
@@ -400,6 +610,7 @@ def install_hooks(peer):
     peer.backward.check_unsafe_node_reached = check_backward
     for mod in peer.searches.values():
         mod.store_results = store_results
+        mod.acc_input_forward = acc_input_forward
 
 
 def search(peer, kind: str, proposer: str, guardian: str, seed: int, budget: dict, starts: str) -> dict:
@@ -407,9 +618,16 @@ def search(peer, kind: str, proposer: str, guardian: str, seed: int, budget: dic
     A, S, _ = guardian_sets(peer)
     cap = STALL_FACTOR * (budget["nodes"] * budget["steps"] if kind != "backward"
                           else budget["backward_nodes"] * budget["backward_steps"] ** 2)
-    run = Run(guardian, starts, A, S, cap)
+    guard = getattr(peer, "safe_acc_guard", None)
+    if guardian == "safe_acc" and guard is None:
+        raise SystemExit("--guardians safe_acc needs --safe-acc DIR (a copy of CommonRoad/safe-acc)")
+    if proposer == "safe_acc_nominal" and guardian != "safe_acc":
+        raise SystemExit("--proposers safe_acc_nominal (safe-acc's own nominal ACC, which may find no input) runs "
+                         "behind --guardians safe_acc only")
+    run = Run(guardian, starts, A, S, cap, guard)
+    run.proposer = proposer
     peer.current = run
-    prm = peer_params(peer, kind, proposer, budget)
+    prm = peer_params(peer, kind, "pi" if proposer == "safe_acc_nominal" else proposer, budget)
     np.random.seed(seed)
     run.recording = kind != "backward"
     t0 = time.perf_counter()
@@ -449,6 +667,7 @@ def accepted_share(peer, samples: int, seed: int) -> dict:
     """Over the peer's start distribution (``init_nodes_forward`` before its own test: ACC at 0 m/s^2, speeds
     uniform in [0, v_max], the lead's centre uniform as the peer draws it): the share each criterion accepts."""
     A, S, _ = guardian_sets(peer)
+    guard = getattr(peer, "safe_acc_guard", None)
     prm = peer_params(peer, "forward", "pi", {"nodes": 1, "steps": 1})
     acc, lead, sim = prm["acc_vehicle_param"], prm["lead_vehicle_param"], prm["simulation_param"]
     State, Node = peer.node.State, peer.node.Node
@@ -469,6 +688,8 @@ def accepted_share(peer, samples: int, seed: int) -> dict:
         n["unaware set"] += bool(S.contains(x[:3])[0])
         n["actuated set"] += act
         n["peer and actuated set"] += peer_ok and act
+        if guard is not None:
+            n["safe-acc (gap > its safe distance)"] = n.get("safe-acc (gap > its safe distance)", 0) + guard.accepts(x)
     return {k: v / samples for k, v in n.items()}
 
 
@@ -522,11 +743,12 @@ def fmt(x) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peer", required=True, help="a copy of CommonRoad/safety-falsification-acc")
+    ap.add_argument("--safe-acc", help="a copy of CommonRoad/safe-acc (needed by --guardians safe_acc)")
     ap.add_argument("--seeds", type=int, default=2, help="searches per search kind x proposer x guardian")
     ap.add_argument("--seed0", type=int, default=0)
     ap.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
     ap.add_argument("--proposers", nargs="+", choices=PROPOSERS, default=list(PROPOSERS))
-    ap.add_argument("--guardians", nargs="+", choices=GUARDIANS, default=list(GUARDIANS))
+    ap.add_argument("--guardians", nargs="+", choices=GUARDIANS, default=list(GUARDIANS[:3]))
     ap.add_argument("--nodes", type=int, default=10, help="forward and Monte Carlo: nodes per step")
     ap.add_argument("--steps", type=int, default=100, help="forward and Monte Carlo: steps (0.1 s each)")
     ap.add_argument("--backward-nodes", type=int, default=5)
@@ -544,6 +766,10 @@ def main(argv=None) -> int:
     peer = load_peer(args.peer)
     peer.h_min = args.h_min
     install_hooks(peer)
+    if args.safe_acc:
+        peer.safe_acc_guard = SafeAccGuard(load_safe_acc(args.safe_acc, peer), peer, args.h_min)
+    elif "safe_acc" in args.guardians:
+        ap.error("--guardians safe_acc needs --safe-acc DIR (a copy of CommonRoad/safe-acc)")
     rows = []
     for kind in args.kinds:
         for proposer in args.proposers:
