@@ -110,12 +110,14 @@ class EgoSupervisor:
         inputs = [iv for lo, hi in speeds for iv in speeds_to_inputs(self.params.car_following, v[ego], [(lo, hi)])]
         return ChoiceVerdict(trig, inputs, "" if inputs else "no input of U reaches a responsible speed")
 
-    def lane_change_speeds(self, p, v, lane, ego, trig, announced, lengths=None, silent=()):
+    def lane_change_speeds(self, p, v, lane, ego, trig, announced, lengths=None, silent=(), labels=None):
         """The ego's next speeds that make the lane change ``trig`` ρ̂-responsible, and why none do.
 
         Speeds rather than inputs, so that an ego whose input maps to its next speed otherwise
-        than (7.3) (drag, noise) converts them exactly. Returns ``(intervals, reason)``.
+        than (7.3) (drag, noise) converts them exactly. Returns ``(intervals, reason)``; the reason names a car
+        by ``labels[k]`` (default: its index ``k``), for a caller that hands over part of a longer list.
         """
+        label = (lambda k: k) if labels is None else labels.__getitem__
         prm, cf = self.params, self.params.car_following
         target = lane[ego] + LANE_SHIFT[trig]
         if not 1 <= target <= prm.n_lanes:
@@ -157,7 +159,7 @@ class EgoSupervisor:
             speeds = self.S.speed_intervals(pn[k] - lengths[k] - pn[ego], vL)
             allowed = intersect_intervals(allowed, speeds)
             if not allowed:
-                return [], f"ego too close to car {k} ahead in lane {target}"
+                return [], f"ego too close to car {label(k)} ahead in lane {target}"
         # 2. cars that can get the ego as leader: in the target lane behind it at t+1.
         followers = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, target)]
         if not trivial:
@@ -169,7 +171,7 @@ class EgoSupervisor:
                 continue   # inside its set behind any ego speed: [0, v_max], nothing cut
             allowed = intersect_intervals(allowed, So.lead_speed_intervals(v_fast, pn[ego] - lengths[ego] - pn[k]))
             if not allowed:
-                return [], f"car {k} behind in lane {target} could not stay safe"
+                return [], f"car {label(k)} behind in lane {target} could not stay safe"
         # 3. cars behind the ego in its lane that lose it as their leader.
         old = lane[ego]
         behind = [k for k in range(n) if k != ego and pn[k] < pn[ego] and may_be_in(k, old)]
@@ -185,5 +187,5 @@ class EgoSupervisor:
                 if x[1] >= free_others and 0.0 <= x[0] <= co.v_max and 0.0 <= x[2] <= co.v_max:
                     continue   # inside the set: too far to matter
                 if not So.contains(np.array([x]))[0]:
-                    return [], f"car {c} behind in lane {old} would be exposed to car {k}"
+                    return [], f"car {label(c)} behind in lane {old} would be exposed to car {label(k)}"
         return allowed, ""

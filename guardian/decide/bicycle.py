@@ -329,12 +329,18 @@ class BicycleGuardian:
         ``steering`` is done) whose body the path would reach further into sideways than the ego's body reaches
         now; "" when there is none. The traffic rules order cars along a lane; a body over a lane line beside
         the ego is not ordered, and only the ego's own sideways motion can close that gap."""
-        cars = [c for c in scene.others if c.across]
-        if not cars:
+        index = scene.lane_index
+        if not index.any_across:
             return ""
         across, horizon = self.kin.path_across_of(ego, steering)
         (now_lo, now_hi), accel = across[0], self.config.traffic_accel
-        for car in cars:
+        # a car further along the road than any closing speed, the traffic's acceleration and both bodies reach is
+        # skipped below: only the cars within that distance are read
+        reach = ((abs(ego.speed) + index.fastest) * horizon + accel * horizon ** 2 + index.longest + self.kin.length
+                 + 1.0)
+        for car in (index.cars[i] for i in index.near(ego.front, reach, scene.own)):
+            if not car.across:
+                continue
             gap = max(car.front - car.length - ego.front, ego.front - self.kin.length - car.front)
             if gap > abs(ego.speed - car.speed) * horizon + accel * horizon ** 2:
                 continue

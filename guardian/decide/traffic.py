@@ -125,13 +125,22 @@ class TrafficSupervisor:
         """Why ``car`` may stop faster than the traffic model allows ("" when it may not): it has
         crashed, or in some lane it is outside the car-following set behind the car it follows, or it
         cannot stop behind that car when that car is at risk (see the module docstring)."""
+        memo = self._verdicts(scene, car)
+        if id(car) not in memo:
+            self._resolve(scene, car, memo)
+        return memo[id(car)]
+
+    def _verdicts(self, scene: Scene, car: Car) -> dict:
+        """Where the verdicts of ``scene``'s cars are kept. A car at or ahead of the ego follows only cars strictly
+        ahead of it, never the ego's own body, so its verdict is the same in every guarded car's scene that shares
+        the road's index (``Scene.index``): it is kept there, for every supervisor with these bounds."""
+        if scene.index is not None and car.front >= scene.ego.front:
+            return scene.index.verdicts.setdefault((self.others, self.wreck_margin), {})
         cars, memo = self._risk
         if cars is not scene.others:
             memo = {}
             self._risk = (scene.others, memo)
-        if id(car) not in memo:
-            self._resolve(scene, car, memo)
-        return memo[id(car)]
+        return memo
 
     def _resolve(self, scene: Scene, car: Car, memo: dict) -> None:
         """``memo`` filled for ``car`` and the cars its verdict needed, in the order the rule asks for them
@@ -210,19 +219,38 @@ class TrafficSupervisor:
                 return EntryVerdict(lane, False, [], f"{follower.name} behind in lane {lane} does not see the ego "
                                                      f"(highway-env's v0 search ends at its lane segment): it would "
                                                      f"not brake")
+        index, own = scene.lane_index, scene.own
+        reach = self._entry_reach(index, ego)
+        picked = range(len(index.cars)) if reach is None else index.near(ego.front, reach, own)
         p, v, ln, lengths = [ego.front], [min(ego.speed, self.params.v_max)], [home], [ego.length]
-        silent = set()
-        for c in scene.others:
-            for k in sorted(c.lanes):
+        labels, silent = [0], set()
+        for i in picked:
+            c = index.cars[i]
+            if c is own:
+                continue
+            at = index.flat_position(i, own)
+            for n, k in enumerate(sorted(c.lanes)):
                 if not c.announces:
                     silent.add(len(p))
                 p.append(c.front)
                 v.append(min(max(c.speed, 0.0), self.params.v_max))
                 ln.append(k)
                 lengths.append(c.length)
+                labels.append(at + n)
         prm = HighwayParams(car_following=self.params, n_lanes=scene.n_lanes, n_cars=len(p) - 1,
                             car_length=ego.length, ego_lane=home)
         sup = EgoSupervisor(prm, self.S, self.overapprox, others_invariant=self.S_others)
-        speeds, reason = sup.lane_change_speeds(p, v, ln, 0, LEFT if lane > home else RIGHT, {}, lengths, silent)
+        speeds, reason = sup.lane_change_speeds(p, v, ln, 0, LEFT if lane > home else RIGHT, {}, lengths, silent,
+                                                labels)
         return EntryVerdict(lane, bool(speeds), speeds, reason)
+
+    def _entry_reach(self, index, ego: Car) -> float | None:
+        """How far from the ego's front a car can take part in an entry's verdict (7.5): ``far_enough`` beyond any
+        gap the rules weigh, a body and a step of travel each way, doubled (a car that hides a nearer one lies
+        between it and the ego); None where the ego's set has no such distance (every car is read)."""
+        free = max(far_enough(self.S), far_enough(self.S_others))
+        if math.isinf(free):
+            return None
+        travel = self.params.dt * (self.params.v_max + abs(ego.speed)) + self.others.dt * self.others.v_max
+        return 2.0 * (free + max(index.longest, ego.length) + travel) + 10.0
 

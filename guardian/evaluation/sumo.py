@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from guardian.adapters.sumo.connection import close_sumo, open_sumo
-from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap, place, scene
+from guardian.adapters.sumo.scene import BicycleModel, Frame, ego_state, overlap, place, sensed_scene, traffic_of
 from guardian.adapters.sumo.shadows import Shadows, is_shadow
 from guardian.config import GuardianConfig
 from guardian.decide.bicycle import BicycleGuardian
@@ -261,19 +261,23 @@ class _Episode:
             numbering = self.frame.road.numbering
             order = example8_order([bodies[c.name].front for c in self.cars],
                                    [numbering.itha(bodies[c.name].own) for c in self.cars])
+        # every body read once; each guarded vehicle's scene is the road without its own body (guardian.model.sensing.
+        # Traffic), the other guarded vehicles announcing (in the ordered case, the lanes they announced so far)
+        readings = {v: b if v not in names else replace(b, announces=True, announced=frozenset())
+                    for v, b in bodies.items()}
+        traffic = traffic_of(self.frame, list(readings.values()), self.config.reversing, self.kin.LATERAL_MARGIN)
         for i in order:
             car = self.cars[i]
-            others = [b if v not in names else replace(b, announces=True, announced=announced.get(v, frozenset()))
-                      for v, b in bodies.items() if v != car.name]
-            d = self._step(car, bodies[car.name], others, t)
+            patched = [replace(readings[v], announced=lanes) for v, lanes in announced.items() if lanes]
+            seen = sensed_scene(traffic, bodies[car.name], patched)
+            d = self._step(car, bodies[car.name], seen, t)
             if ordered:  # where this vehicle may be during the step, for the vehicles after it
                 announced[car.name] = frozenset(d.lanes) | frozenset(d.touched)
 
-    def _step(self, car: Guarded, me, others: list, t: float):
+    def _step(self, car: Guarded, me, seen, t: float):
         """One guarded vehicle: propose, decide (or not), move by the model, tell SUMO, place its shadows."""
         out, kin, setting = self.out, self.kin, self.setting
-        proposed = car.drive(me, others, t)
-        seen = scene(self.frame, me, others, self.config.reversing, kin.LATERAL_MARGIN)
+        proposed = car.drive(me, list(seen.sensed), t)
         state = ego_state(me) if self.actuator is None else replace(ego_state(me), acceleration=car.accel)
         if self.guarded:
             applied, d = car.guard.step(state, seen, proposed)

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from guardian.model.body import half_extents
-from guardian.model.scene import Car, Scene
+from guardian.model.scene import Car, LaneIndex, Scene
 
 
 @dataclass(frozen=True)
@@ -70,3 +70,56 @@ def scene_of(road, ego: Car, sensed, reversing, margin: float, fixed=()) -> Scen
     cars = reversing.lengthen(cars, own)
     cars += [car_of(road, s, margin) for s in sensed if s.fixed]
     return Scene(ego, tuple(cars) + tuple(fixed), road.n_lanes, tuple(sensed))
+
+
+class Traffic:
+    """Every car on the road at one instant, read once for all the guarded cars among them: each guarded car's
+    scene (``scene_for``) is this road without its own body, and every such scene shares one ``LaneIndex`` (the
+    cars per lane sorted once, the traffic rules' verdicts kept once). The scenes are those ``scene_of`` builds
+    from the same readings car by car; where they could differ (a car that may reverse is lengthened by the cars
+    around it; another guarded car's announcement changes its lanes) ``scene_for`` builds that one by
+    ``scene_of``."""
+
+    def __init__(self, road, sensed, reversing, margin: float, fixed=()):
+        self.road, self.reversing, self.margin, self.fixed = road, reversing, margin, tuple(fixed)
+        self.sensed = tuple(sensed)
+        moving = [s for s in self.sensed if not s.fixed]
+        cars = [road.memo(("car", s, margin), lambda s=s: car_of(road, s, margin)) for s in moving]
+        self.shared = not any(reversing.may_reverse(c.speed) for c in cars)   # then lengthening changes no car
+        cars += [car_of(road, s, margin) for s in self.sensed if s.fixed]
+        self.cars = tuple(cars) + self.fixed
+        self.index = LaneIndex(self.cars)
+        order = [s for s in self.sensed if not s.fixed] + [s for s in self.sensed if s.fixed]
+        self._car_at = {s.name: k for k, s in enumerate(order)}
+        self._sensed_at = {s.name: k for k, s in enumerate(self.sensed)}
+        if len(self._sensed_at) != len(self.sensed):
+            raise ValueError("Traffic: two readings share a name; a guarded car is found by its name")
+        self._patches: dict = {}
+
+    def scene_for(self, ego: Car, name: str, patched=()) -> Scene:
+        """The scene of the guarded car ``name`` (its reading is one of ``sensed``) as the ITHA agent ``ego``;
+        ``patched``: readings that replace those of the same names for this car (other guarded cars'
+        announcements)."""
+        k = self._sensed_at.get(name)
+        if k is None:
+            raise ValueError(f"Traffic: no reading named {name!r}")
+        sensed = self.sensed[:k] + self.sensed[k + 1:]
+        changed = [s for s in patched if s.name != name]
+        if changed:
+            out = list(sensed)
+            for s in changed:
+                j = self._sensed_at[s.name]
+                out[j - (j > k)] = s
+            sensed = tuple(out)
+        if not self.shared or any(self._differs(s) for s in changed):
+            return scene_of(self.road, ego, sensed, self.reversing, self.margin, self.fixed)
+        i = self._car_at[name]
+        return Scene(ego, self.cars[:i] + self.cars[i + 1:], self.road.n_lanes, sensed, self.index, self.cars[i])
+
+    def _differs(self, s: Sensed) -> bool:
+        """Does reading ``s`` make another car than the one the index holds under its name (by value)?"""
+        known = self._patches.get(s)
+        if known is None:
+            base = self.cars[self._car_at[s.name]]
+            known = self._patches[s] = car_of(self.road, s, self.margin) != base
+        return known

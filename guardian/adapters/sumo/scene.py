@@ -22,7 +22,7 @@ import numpy as np
 
 from guardian.model.roads import RoadMap, road_from_dict
 from guardian.model.scene import Car, EgoState
-from guardian.model.sensing import Sensed, scene_of
+from guardian.model.sensing import Sensed, Traffic
 
 KEEP_ROUTE = 2  # map by position (placement exact), on the lane of the centre
 
@@ -177,11 +177,21 @@ def ego_state(b: Sensed) -> EgoState:
     return EgoState(b.front, b.y, b.heading, b.speed, b.own, b.own, b.x)
 
 
-def scene(frame: Frame, ego: Sensed, others: list, reversing, margin: float):
-    """The scene of guarded vehicle ``ego`` among ``others``; on a road with a dead end, the end as a standing car."""
-    me = Car(ego.front, ego.speed, frozenset(), ego.length, "ego")
+def traffic_of(frame: Frame, bodies: list, reversing, margin: float) -> Traffic:
+    """Every vehicle's body read once this step (``Traffic``), for the scenes of all guarded vehicles among them; on a
+    road with a dead end, the end as a standing car."""
     ends = frame.road.end_cars() if isinstance(frame.road, RoadMap) else ()
-    return scene_of(frame.road, me, others, reversing, margin, ends)
+    return Traffic(frame.road, bodies, reversing, margin, ends)
+
+
+def sensed_scene(traffic: Traffic, ego: Sensed, patched=()):
+    """The scene of guarded vehicle ``ego`` (one of ``traffic``'s bodies) among the other bodies; ``patched``:
+    other guarded vehicles' readings with what they announced."""
+    return traffic.scene_for(_ego_car(ego), ego.name, patched)
+
+
+def _ego_car(ego: Sensed) -> Car:
+    return Car(ego.front, ego.speed, frozenset(), ego.length, "ego")
 
 
 @dataclass
