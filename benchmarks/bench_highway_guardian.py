@@ -54,15 +54,14 @@ def _timed_sim(env, episodes: int, guarded: bool):
                                                            // base.config["policy_frequency"]))
     base._simulate = timed_simulate
     if guarded:
-        for name in ("_supervise_overtake", "_supervise_highway"):
-            original = getattr(env, name)
+        original = env._simulation_step   # the wrapper's per-simulation-step supervision of a guarded car
 
-            def timed(*a, _f=original):
-                t = time.perf_counter()
-                out = _f(*a)
-                hook_times.append(time.perf_counter() - t)
-                return out  # the decision, which the wrapper records
-            setattr(env, name, timed)
+        def timed(*a, _f=original):
+            t = time.perf_counter()
+            out = _f(*a)
+            hook_times.append(time.perf_counter() - t)
+            return out
+        env._simulation_step = timed
     step_times = []
     for ep in range(episodes):
         obs, _ = env.reset(seed=ep)
@@ -114,7 +113,7 @@ def bench(episodes: int, steps: int = 200) -> dict:
     library = build_library(params=OvertakeParams.among_traffic(), quiet=True, workers=2)  # HighwayOvertake's
     out = {}
     for env_id, action, extra in CASES:
-        cfg = highway_env_config(Rollout(env_id, "", action=action, library=library, env_config=extra))
+        cfg = highway_env_config(Rollout(env_id, "", action=action, library=library, env_config=extra or {}))
         free, _, free_steps = _timed_sim(gym.make(env_id, config=cfg), episodes, False)
         _, hook, guarded_steps = _timed_sim(Guardian(gym.make(env_id, config=cfg), library), episodes, True)
         sim_ms = 1e3 * np.median(free)

@@ -193,8 +193,10 @@ def load_safe_acc(path: str, peer) -> types.SimpleNamespace:
     path = os.path.abspath(path)
     if not os.path.isfile(os.path.join(path, "acc", "safe_acc.py")):
         raise SystemExit(f"--safe-acc {path}: not a copy of CommonRoad/safe-acc (no acc/safe_acc.py)")
-    ours = ("acc", "common")
-    mine = lambda name: name in ours or name.startswith(("acc.", "common."))  # noqa: E731
+
+    def mine(name: str) -> bool:
+        return name in ("acc", "common") or name.startswith(("acc.", "common."))
+
     saved = {k: v for k, v in sys.modules.items() if mine(k)}
     saved_path = list(sys.path)
     for k in saved:

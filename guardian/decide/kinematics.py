@@ -203,12 +203,22 @@ class BicycleEgo:
         sin_beta = -heading * (self.length / 2) / (self.dt * speed)
         beta_max = math.atan(0.5 * math.tan(self.max_steering))
         beta = math.asin(max(-math.sin(beta_max), min(math.sin(beta_max), sin_beta)))
-        return float(np.clip(math.atan(2 * math.tan(beta)), -self.max_steering, self.max_steering))
+        return float(min(max(math.atan(2 * math.tan(beta)), -self.max_steering), self.max_steering))
 
     def path(self, y: float, heading: float, speed: float, steering: float, speed_step: float = 0.0) -> list:
         """``[(y, heading, speed), ...]`` after one step with ``steering`` and then the straightening
         steering until the heading is (nearly) 0: the horizon the bicycle needs to undo its heading.
-        The speed changes by ``speed_step`` per step (kept at or above 0)."""
+        The speed changes by ``speed_step`` per step (kept at or above 0). Remembered: a decision asks for each
+        path more than once (the lanes it sweeps, then its reach across the road)."""
+        key = (y, heading, speed, steering, speed_step)
+        memo = self.__dict__.setdefault("_straight_paths", {})
+        if key not in memo:
+            if len(memo) > 1_000:
+                memo.clear()
+            memo[key] = self._straight_path(y, heading, speed, steering, speed_step)
+        return list(memo[key])
+
+    def _straight_path(self, y: float, heading: float, speed: float, steering: float, speed_step: float) -> list:
         states = [(*self.predict(y, heading, speed, steering), max(speed + speed_step, 0.0))]
         for _ in range(self.RECOVERY_STEPS):
             y1, h1, v1 = states[-1]
@@ -232,13 +242,14 @@ class BicycleEgo:
         beta_max = math.atan(0.5 * math.tan(self.max_steering))
         return self.dt * speed * math.cos(min(abs(heading) + beta_max, math.pi / 2))
 
-    def steering_candidates(self, proposed: float, heading: float) -> list:
-        """The proposed steering first, then the one that stops sideways motion, then a grid by distance."""
+    def steering_candidates(self, proposed: float, heading: float):
+        """The proposed steering first, then the one that stops sideways motion, then a grid by distance (the rest
+        made only when the proposal is refused)."""
+        yield proposed
         straight = math.atan(2 * math.tan(-heading)) if abs(heading) < math.pi / 2 else 0.0
         grid = np.linspace(-self.max_steering, self.max_steering, self.CANDIDATES)
-        rest = sorted([float(s) for s in grid] + [float(np.clip(straight, -self.max_steering, self.max_steering))],
-                      key=lambda s: abs(s - proposed))
-        return [proposed] + rest
+        yield from sorted([float(s) for s in grid] + [float(np.clip(straight, -self.max_steering, self.max_steering))],
+                          key=lambda s: abs(s - proposed))
 
     # ---- the interface BicycleGuardian reads (states are guardian.model.scene.EgoState) -------------------
     def occupied(self, ego) -> frozenset:
@@ -253,7 +264,7 @@ class BicycleEgo:
         """Is there a lane ``lane`` beside the ego here?"""
         return 0 <= lane < self.n_lanes
 
-    def candidates(self, ego, proposed: float) -> list:
+    def candidates(self, ego, proposed: float):
         return self.steering_candidates(proposed, ego.heading)
 
     def after(self, ego, steering: float):
@@ -330,7 +341,7 @@ class RoadMapEgo(BicycleEgo):
         sin_beta = d * (self.length / 2) / (self.dt * v)
         beta_max = math.atan(0.5 * math.tan(self.max_steering))
         beta = math.asin(max(-math.sin(beta_max), min(math.sin(beta_max), sin_beta)))
-        return float(np.clip(math.atan(2 * math.tan(beta)), -self.max_steering, self.max_steering))
+        return float(min(max(math.atan(2 * math.tan(beta)), -self.max_steering), self.max_steering))
 
     def _path(self, x, y, h, v, steering, speed_step) -> list:
         """``[(x, y, heading, speed), ...]`` after one step with ``steering``, then the recovery steering until
@@ -382,14 +393,14 @@ class RoadMapEgo(BicycleEgo):
             return lane == ego.lane  # nothing beside a ramp's approach or an exit's curve
         return self.road.slot_at(lane, ego.x)
 
-    def candidates(self, ego, proposed: float) -> list:
+    def candidates(self, ego, proposed: float):
+        yield proposed
         rel = self._relative(ego.x, ego.y, ego.heading)
         straight = math.atan(2 * math.tan(-rel)) if abs(rel) < math.pi / 2 else 0.0
         grid = np.linspace(-self.max_steering, self.max_steering, self.CANDIDATES)
-        rest = sorted([float(s) for s in grid] + [float(np.clip(straight, -self.max_steering, self.max_steering)),
-                                                 self._recover(ego.x, ego.y, ego.heading, ego.speed)],
-                      key=lambda s: abs(s - proposed))
-        return [proposed] + rest
+        yield from sorted([float(s) for s in grid] + [float(np.clip(straight, -self.max_steering, self.max_steering)),
+                                                     self._recover(ego.x, ego.y, ego.heading, ego.speed)],
+                          key=lambda s: abs(s - proposed))
 
     def after(self, ego, steering: float):
         return self._step(ego.x, ego.y, ego.heading, ego.speed, steering)

@@ -247,10 +247,12 @@ class TrafficSupervisor:
     def _entry_reach(self, index, ego: Car) -> float | None:
         """How far from the ego's front a car can take part in an entry's verdict (7.5): ``far_enough`` beyond any
         gap the rules weigh, a body and a step of travel each way, doubled (a car that hides a nearer one lies
-        between it and the ego); None where the ego's set has no such distance (every car is read)."""
+        between it and the ego); None (every car is read) where the ego's set has no such distance, or where the
+        ego's top speed is above the traffic's (the rules then judge a car's speed outside the traffic's set however
+        far it is)."""
         free = max(far_enough(self.S), far_enough(self.S_others))
-        if math.isinf(free):
-            return None
+        if math.isinf(free) or self.params.v_max > self.others.v_max:
+            return None   # (the second: speeds clipped to the ego's top speed may lie beyond the traffic's set)
         travel = self.params.dt * (self.params.v_max + abs(ego.speed)) + self.others.dt * self.others.v_max
         return 2.0 * (free + max(index.longest, ego.length) + travel) + 10.0
 

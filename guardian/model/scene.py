@@ -11,6 +11,7 @@ simulator by ``guardian.adapters.highway_env.scene`` and by hand in the tests: n
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import dataclass, field
 
 
@@ -42,6 +43,9 @@ class LaneIndex:
         self.cars = cars
         per_lane: dict = {}
         for i, c in enumerate(cars):
+            if math.isnan(c.front) or not c.length >= 0:   # sorting and every bound read below need these
+                raise ValueError(f"{c.name or 'a car'}: front {c.front!r}, length {c.length!r}: a position must be a "
+                                 "number and a length a number >= 0")
             for lane in c.lanes:
                 per_lane.setdefault(lane, []).append(i)
         self.lanes = {}
@@ -51,7 +55,8 @@ class LaneIndex:
                                 max(cars[i].length for i in order) + self.REACH_SLACK)
         self.laneless = [i for i, c in enumerate(cars) if not c.lanes]
         self.longest = max((c.length for c in cars), default=0.0)
-        self.fastest = max((abs(c.speed) for c in cars), default=0.0)
+        speeds = [abs(c.speed) for c in cars]
+        self.fastest = math.inf if any(math.isnan(v) for v in speeds) else max(speeds, default=0.0)   # NaN: read all
         self.any_across = any(c.across for c in cars)
         self.verdicts: dict = {}
 
@@ -79,7 +84,7 @@ class LaneIndex:
     def near(self, front: float, reach: float, skip=None) -> list:
         """The positions in ``cars``, in order, of every car (``skip`` aside) whose front is within ``reach`` of
         ``front``."""
-        found = set(i for i in self.laneless if abs(self.cars[i].front - front) <= reach)
+        found = {i for i in self.laneless if abs(self.cars[i].front - front) <= reach}
         for fronts, order, _ in self.lanes.values():
             lo, hi = bisect.bisect_left(fronts, front - reach), bisect.bisect_right(fronts, front + reach)
             found.update(order[lo:hi])

@@ -131,3 +131,24 @@ def test_the_sideways_window_reads_the_car_alongside(monkeypatch):
     assert steering() < 0.3
     monkeypatch.setattr(LaneIndex, "near", lambda self, front, reach, skip=None: [])
     assert steering() == 0.3
+
+
+def test_an_ego_faster_than_the_traffics_model_reads_every_car_for_its_entry():
+    """With the ego's top speed above the traffic's, a car far ahead driving faster than the traffic's model allows
+    leaves the car behind the ego outside its set however far it is: the entry is refused, as when every car is
+    read (a window would miss the far car)."""
+    sup = TrafficSupervisor(CarFollowingParams(v_max=40.0), CarFollowingParams(v_max=30.0), "ordered")
+    ego = Car(0.0, 20.0, frozenset({2}), 5.0, "ego")
+    others = (Car(-20.0, 20.0, frozenset({2}), 5.0, "behind"), Car(1000.0, 40.0, frozenset({2}), 5.0, "far ahead"))
+    verdict = sup.entry(Scene(ego, others, 3), 1)
+    assert not verdict.responsible and verdict.reason == "car 1 behind in lane 2 would be exposed to car 2"
+
+
+@pytest.mark.parametrize("front, length", [(float("nan"), 5.0), (10.0, -1.0), (10.0, float("nan"))])
+def test_a_car_without_a_position_or_with_a_negative_length_is_refused_by_name(front, length):
+    """A front that is not a number would break the lane's order (and the leader it finds); a negative length the
+    bounds of what a query reads: refused, naming the car, never ordered somewhere."""
+    ego = Car(0.0, 20.0, frozenset({1}), 5.0, "ego")
+    scene = Scene(ego, (Car(30.0, 20.0, frozenset({1}), 5.0, "real"), Car(front, 20.0, frozenset({1}), length, "odd")), 2)
+    with pytest.raises(ValueError, match="odd: front"):
+        scene.leaders(1)
