@@ -137,6 +137,7 @@ class BicycleEgo:
     CANDIDATES = 41       # steering angles tried when the proposed one is refused
     RECOVERY_STEPS = 60   # steps a straightening may take (a bound; headings below MAX_HEADING need few)
     LATERAL_MARGIN = 0.05  # [m] the body is widened by this when its path is checked against lane borders
+    PATHS_KEPT = 1_000     # paths remembered (a decision asks for each more than once)
 
     def __init__(self, dt: float, accel: float, length: float, width: float, lane_width: float, n_lanes: int,
                  max_steering: float):
@@ -210,12 +211,16 @@ class BicycleEgo:
         steering until the heading is (nearly) 0: the horizon the bicycle needs to undo its heading.
         The speed changes by ``speed_step`` per step (kept at or above 0). Remembered: a decision asks for each
         path more than once (the lanes it sweeps, then its reach across the road)."""
-        key = (y, heading, speed, steering, speed_step)
-        memo = self.__dict__.setdefault("_straight_paths", {})
+        return self._remembered((y, heading, speed, steering, speed_step),
+                                lambda: self._straight_path(y, heading, speed, steering, speed_step))
+
+    def _remembered(self, key: tuple, compute) -> list:
+        """A path ``compute()`` gives, remembered under ``key`` (at most ``PATHS_KEPT``; then it starts again)."""
+        memo = self.__dict__.setdefault("_paths", {})
         if key not in memo:
-            if len(memo) > 1_000:
+            if len(memo) > self.PATHS_KEPT:
                 memo.clear()
-            memo[key] = self._straight_path(y, heading, speed, steering, speed_step)
+            memo[key] = compute()
         return list(memo[key])
 
     def _straight_path(self, y: float, heading: float, speed: float, steering: float, speed_step: float) -> list:
@@ -346,13 +351,8 @@ class RoadMapEgo(BicycleEgo):
     def _path(self, x, y, h, v, steering, speed_step) -> list:
         """``[(x, y, heading, speed), ...]`` after one step with ``steering``, then the recovery steering until
         the heading is (nearly) the lane's (remembered: a decision asks for each path more than once)."""
-        key = (x, y, h, v, steering, speed_step)
-        memo = self.__dict__.setdefault("_paths", {})
-        if key not in memo:
-            if len(memo) > 1_000:
-                memo.clear()
-            memo[key] = self._one_path(x, y, h, v, steering, speed_step)
-        return list(memo[key])
+        return self._remembered((x, y, h, v, steering, speed_step),
+                                lambda: self._one_path(x, y, h, v, steering, speed_step))
 
     def _one_path(self, x, y, h, v, steering, speed_step) -> list:
         states = [(*self._step(x, y, h, v, steering), max(v + speed_step, 0.0))]

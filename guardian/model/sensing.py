@@ -65,11 +65,16 @@ def scene_of(road, ego: Car, sensed, reversing, margin: float, fixed=()) -> Scen
     """The ``Scene`` of ``ego`` among ``sensed`` cars on ``road`` (``Road`` or ``RoadMap``); ``fixed`` are cars
     added as they are (a lane's end as a standing car of length 0)."""
     moving = [s for s in sensed if not s.fixed]
-    cars = [road.memo(("car", s, margin), lambda s=s: car_of(road, s, margin)) for s in moving]  # once per reading
+    cars = _cars_of(road, moving, margin)
     own = [road.numbering.itha(s.own) for s in moving]
     cars = reversing.lengthen(cars, own)
     cars += [car_of(road, s, margin) for s in sensed if s.fixed]
     return Scene(ego, tuple(cars) + tuple(fixed), road.n_lanes, tuple(sensed))
+
+
+def _cars_of(road, readings, margin: float) -> list:
+    """Each reading as a ``Car`` of ``road``, made once per reading (remembered on the road by its value)."""
+    return [road.memo(("car", s, margin), lambda s=s: car_of(road, s, margin)) for s in readings]
 
 
 class Traffic:
@@ -83,14 +88,13 @@ class Traffic:
     def __init__(self, road, sensed, reversing, margin: float, fixed=()):
         self.road, self.reversing, self.margin, self.fixed = road, reversing, margin, tuple(fixed)
         self.sensed = tuple(sensed)
-        moving = [s for s in self.sensed if not s.fixed]
-        cars = [road.memo(("car", s, margin), lambda s=s: car_of(road, s, margin)) for s in moving]
+        moving, standing = [s for s in self.sensed if not s.fixed], [s for s in self.sensed if s.fixed]
+        cars = _cars_of(road, moving, margin)
         self.shared = not any(reversing.may_reverse(c.speed) for c in cars)   # then lengthening changes no car
-        cars += [car_of(road, s, margin) for s in self.sensed if s.fixed]
+        cars += [car_of(road, s, margin) for s in standing]
         self.cars = tuple(cars) + self.fixed
         self.index = LaneIndex(self.cars)
-        order = [s for s in self.sensed if not s.fixed] + [s for s in self.sensed if s.fixed]
-        self._car_at = {s.name: k for k, s in enumerate(order)}
+        self._car_at = {s.name: k for k, s in enumerate(moving + standing)}
         self._sensed_at = {s.name: k for k, s in enumerate(self.sensed)}
         if len(self._sensed_at) != len(self.sensed):
             raise ValueError("Traffic: two readings share a name; a guarded car is found by its name")
