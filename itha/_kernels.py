@@ -158,9 +158,10 @@ def rss_violations(rho, accel, brake_min, brake_max, v, h, v_lead):
 
 
 @njit(cache=True)
-def floor_rate_limited(fall, u_min, lead_step, dt, v_max, v, h, vL, a):
-    """``min_t Φ_t`` of (7.3) for an ego whose acceleration changes by at most ``fall`` (= jerk dt) a step:
-    from acceleration ``a`` it falls by ``fall`` a step down to ``u_min``, the speed stopping at 0; the lead's
+def floor_rate_limited(fall, keep, u_min, lead_step, dt, v_max, v, h, vL, a):
+    """``min_t Φ_t`` of (7.3) for an ego whose acceleration changes by at most ``fall`` (= jerk dt) a step and,
+    under a lag, keeps the share ``keep`` of the last one (0: none): from acceleration ``a`` the hardest braking
+    goes to ``max(a - fall, keep a + (1 - keep) u_min)`` a step (down to ``u_min``), the speed stopping at 0; the lead's
     speed falls by ``lead_step`` a step down to 0. Stepped until both stand for good (the ego stands, its
     acceleration not positive: it only falls from there). ``-inf`` when even this braking takes the ego's speed
     above ``v_max`` (an acceleration that cannot fall in time overshoots the top speed)."""
@@ -172,7 +173,7 @@ def floor_rate_limited(fall, u_min, lead_step, dt, v_max, v, h, vL, a):
         phi += dt * (vL - v)
         if phi < best:
             best = phi
-        a = max(a - fall, u_min)
+        a = max(a - fall, keep * a + (1.0 - keep) * u_min)
         v = max(v + dt * a, 0.0)
         if v > v_max:
             return -math.inf
@@ -181,12 +182,12 @@ def floor_rate_limited(fall, u_min, lead_step, dt, v_max, v, h, vL, a):
 
 
 @njit(cache=True)
-def highest_safe_command(fall, u_min, lead_step, dt, v_max, v, h, vL, lo, hi, threshold, iterations):
+def highest_safe_command(fall, keep, u_min, lead_step, dt, v_max, v, h, vL, lo, hi, threshold, iterations):
     """Bisection on ``[lo, hi]`` (``lo`` safe, ``hi`` not) of ``floor_rate_limited`` at the next state ``(max(v +
     dt c, 0), h, vL, c)`` ``>= threshold``, which falls with the command ``c``: the last safe command."""
     for _ in range(iterations):
         mid = (lo + hi) / 2
-        if floor_rate_limited(fall, u_min, lead_step, dt, v_max, max(v + dt * mid, 0.0), h, vL, mid) >= threshold:
+        if floor_rate_limited(fall, keep, u_min, lead_step, dt, v_max, max(v + dt * mid, 0.0), h, vL, mid) >= threshold:
             lo = mid
         else:
             hi = mid

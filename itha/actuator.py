@@ -31,8 +31,12 @@ value is at a piece's end or at a root of it.
 The ego's speed is not bounded above here (a speed limit is the driver's business, not the gap's); the lead's
 speed needs no bound either.
 
-``lag`` (a first-order time constant) is declared but refused: its braking profile is exponential, and the
-least gap would need a transcendental root; a lag can be declared conservatively as a delay plus a jerk bound.
+``lag`` (a first-order time constant ``tau``) is modelled as a digital controller sees it: the acceleration held
+over a step moves towards the command by the share ``1 - exp(-dt / tau)`` of the way (the lag's step response
+sampled at the step's end, then held), within the jerk bound (``Actuator.follows``). The map from the last
+acceleration and the command to the next is monotone in both, which is all the sets' arguments need; the
+sets on (7.3)'s Euler step (``RateLimitedSet``) take it. A continuous lag brakes exponentially inside a step, and
+``ActuatedSet`` (exact integration) refuses a lag by name: its least gap would need a transcendental root.
 """
 from __future__ import annotations
 
@@ -45,13 +49,14 @@ from itha.car_following import INNER, SPEED_BISECTIONS, CarFollowingParams
 BISECTIONS = 60
 INF = math.inf
 PROFILES = ("ramp", "hold")
+CUT_ROUNDING = 1e-9   # [m/s^2] see Actuator.cuts
 
 
 @dataclass(frozen=True)
 class Actuator:
     """What the ego's actuator can do: ``|da/dt| <= jerk`` [m/s^3] (``profile``: ramped over a step, or a held
     acceleration whose step-to-step change is at most ``jerk dt``); a command acts ``delay`` steps after it is
-    given; ``lag`` [s] a first-order time constant (not implemented: refused)."""
+    given; ``lag`` [s] a first-order time constant, sampled and held over each step (profile "hold" only)."""
 
     jerk: float = INF
     delay: int = 0
@@ -65,16 +70,59 @@ class Actuator:
             raise ValueError(f"Actuator.delay is a whole number of steps >= 0, got {self.delay!r}")
         if self.profile not in PROFILES:
             raise ValueError(f"Actuator.profile must be one of {PROFILES}, got {self.profile!r}")
-        if self.lag != 0.0:
-            raise ValueError("Actuator.lag is not implemented: a first-order lag brakes exponentially and the set "
-                             "has no exact least gap for it; declare the lag as a delay and a jerk bound instead")
+        if isinstance(self.lag, bool) or not (isinstance(self.lag, (int, float)) and math.isfinite(self.lag)
+                                               and self.lag >= 0):
+            raise ValueError(f"Actuator.lag is a time constant [s] >= 0 (0: none), got {self.lag!r}")
+        if self.lag and self.profile != "hold":
+            raise ValueError("Actuator.lag is modelled on a held acceleration (sampled each step): declare "
+                             "Actuator(lag=..., profile=\"hold\"); a ramp under a lag is not modelled")
+
+    def keep(self, dt: float) -> float:
+        """The share of the last acceleration a step of ``dt`` keeps under the lag: ``exp(-dt / lag)`` (0: none)."""
+        return math.exp(-dt / self.lag) if self.lag else 0.0
+
+    def lagged(self, last: float, asked: float, dt: float) -> float:
+        """Where the lag alone takes the acceleration in a step (``asked`` itself without a lag)."""
+        if not self.lag:
+            return asked
+        keep = self.keep(dt)
+        return keep * last + (1.0 - keep) * asked   # the floor kernel's own arithmetic (_kernels.floor_rate_limited)
 
     def follows(self, last: float, asked: float, dt: float) -> float:
         """The acceleration a held-profile actuator applies over a step of ``dt`` when asked for ``asked`` after
-        applying ``last``: ``asked`` limited to within ``jerk dt`` of ``last`` (the worlds' rule: highway-env's
-        ``envs.actuator.JerkLimit``, the SUMO episodes' model)."""
+        applying ``last``: the lag's response (``asked`` itself without a lag) limited to within ``jerk dt`` of
+        ``last`` (the worlds' rule: highway-env's ``envs.actuator.Actuated``, the SUMO episodes' model)."""
         fall = self.jerk * dt
-        return min(max(asked, last - fall), last + fall)
+        return min(max(self.lagged(last, asked, dt), last - fall), last + fall)
+
+    def cuts(self, last: float, asked: float, dt: float) -> bool:
+        """Did the jerk bound cut the command (the lag's response to it, with a lag)? Under a lag a cut within
+        ``CUT_ROUNDING`` is the inverted lag's rounding (``asks``), not a cut: the worlds count the rest."""
+        lagged = self.lagged(last, asked, dt)
+        applied = self.follows(last, asked, dt)
+        return applied != lagged and (not self.lag or abs(applied - lagged) > CUT_ROUNDING)
+
+    def reach(self, last: float, u_min: float, u_max: float, dt: float) -> tuple[float, float]:
+        """The accelerations the actuator can apply over the next step, commands within ``[u_min, u_max]``."""
+        if not self.lag:
+            fall = self.jerk * dt
+            return max(u_min, last - fall), min(u_max, last + fall)
+        return self.follows(last, u_min, dt), self.follows(last, u_max, dt)
+
+    def asks(self, last: float, target: float, u_min: float, u_max: float, dt: float) -> float:
+        """The command within ``[u_min, u_max]`` that makes the actuator apply ``target`` (a value of ``reach``):
+        ``target`` itself without a lag; with one, the lag inverted. Where the lag's response to ``u_min``
+        (``u_max``) is the reach's end, the end asks ``u_min`` (``u_max``) exactly: the hardest braking is then the
+        hardest command. Where the jerk bound is the end, the end asks the command whose response is the bound (a
+        harder one would be clipped by the jerk bound)."""
+        if not self.lag:
+            return target
+        if target <= self.lagged(last, u_min, dt):
+            return u_min
+        if target >= self.lagged(last, u_max, dt):
+            return u_max
+        keep = self.keep(dt)
+        return min(max((target - keep * last) / (1.0 - keep), u_min), u_max)
 
 
 # ---- piecewise-polynomial motion -------------------------------------------------------------------
@@ -187,6 +235,9 @@ class ActuatedSet:
         if not params.exact:
             raise ValueError("an actuator's dynamics are integrated exactly: use CarFollowingParams(integration="
                              "\"exact\")")
+        if actuator.lag:
+            raise ValueError("ActuatedSet has no lag: a continuous lag brakes exponentially within a step and the "
+                             "least gap has no closed form; a lag is modelled on (7.3)'s Euler step (RateLimitedSet)")
         self.params, self.actuator = params, actuator
 
     @property
@@ -294,17 +345,20 @@ class ActuatedSet:
 # ---- the same on (7.3)'s Euler step --------------------------------------------------------------------
 class RateLimitedSet:
     """The maximal RCIS of (7.3), Euler step and all, for an ego whose acceleration changes by at most
-    ``jerk dt`` from one step to the next (and whose speed must stay within ``v_max`` while it brakes): the world of
-    a simulator that moves its cars by Euler steps
-    (highway-env) with a rate-limited actuator (``envs.actuator.JerkLimit``).
+    ``jerk dt`` from one step to the next and, under a lag, only part of the way to the command (and whose speed
+    must stay within ``v_max`` while it brakes): the world of a simulator that moves its cars by Euler steps
+    (highway-env) with such an actuator (``envs.actuator.Actuated``).
 
-    State ``(v, h, v_L, a)``, ``a`` the acceleration applied over the last step. A command ``c`` in
-    ``reach(a) = [a - jerk dt, a + jerk dt] ∩ U`` gives ``v+ = max(v + dt c, 0)`` (the ego stops, never
+    State ``(v, h, v_L, a)``, ``a`` the acceleration applied over the last step. An applied acceleration ``c`` in
+    ``reach(a)`` (``Actuator.reach``: ``[a - jerk dt, a + jerk dt] ∩ U`` without a lag, the lag's response to the
+    commands of ``U`` with one) gives ``v+ = max(v + dt c, 0)`` (the ego stops, never
     reverses), ``h+ = h + dt (v_L - v)``, ``v_L+ = max(v_L + dt d, 0)``, ``a+ = c``. The set is
-    ``{floor >= h_min}`` with ``floor`` the least step-end gap while the ego's commands fall by ``jerk dt`` a
-    step down to ``u_min`` and the lead brakes at ``d_min`` (``_kernels.floor_rate_limited``); the argument is
+    ``{floor >= h_min}`` with ``floor`` the least step-end gap while the ego's acceleration falls as fast as the
+    actuator lets it (the command ``u_min`` every step) and the lead brakes at ``d_min``
+    (``_kernels.floor_rate_limited``); the argument is
     ``ActuatedSet``'s (every admissible command sequence keeps the ego's acceleration, speed and position at
-    least these, every lead at least as far as the one braking hardest). The next gap does not depend on the
+    least these, every lead at least as far as the one braking hardest: ``Actuator.follows`` is monotone in the
+    last acceleration and the command). The next gap does not depend on the
     command, so the set bound to the ego's speed and acceleration now (``bound``) answers ``(7.4)`` in next
     speeds, as ``MaximalSet.speed_intervals`` does, and the traffic rules take it unchanged. ``jerk = inf`` is
     (7.3) itself (tested against ``MaximalSet``).
@@ -322,17 +376,20 @@ class RateLimitedSet:
         if actuator.profile != "hold":
             raise ValueError("over an Euler step the acceleration is held: declare Actuator(profile=\"hold\")")
         self.params, self.actuator = params, actuator
-        self.fall = actuator.jerk * params.dt
+        self.fall, self.keep = actuator.jerk * params.dt, actuator.keep(params.dt)
+        if self.keep > 1.0 - 1e-9:
+            raise ValueError(f"a lag of {actuator.lag:g} s at a step of {params.dt:g} s moves the acceleration less than "
+                             "1e-9 of the way a step: the set's braking would not end")
 
     def reach(self, a: float) -> tuple[float, float]:
-        """The commands the actuator can follow from acceleration ``a``."""
+        """The accelerations the actuator can apply next from acceleration ``a`` (commands within ``U``)."""
         p = self.params
-        return max(p.u_min, a - self.fall), min(p.u_max, a + self.fall)
+        return self.actuator.reach(a, p.u_min, p.u_max, p.dt)
 
     def floor(self, x) -> float:
         v, h, vL, a = (float(c) for c in x)
         p = self.params
-        return _kernels.floor_rate_limited(self.fall, p.u_min, p.lead_step, p.dt, p.v_max, v, h, vL, a)
+        return _kernels.floor_rate_limited(self.fall, self.keep, p.u_min, p.lead_step, p.dt, p.v_max, v, h, vL, a)
 
     def contains(self, x) -> bool:
         v, h, vL, a = (float(c) for c in x)
@@ -383,8 +440,8 @@ class RateLimitedEgo:
 
     def _safe(self, command: float, h: float, vL: float) -> bool:
         p = self.params
-        return _kernels.floor_rate_limited(self.S.fall, p.u_min, p.lead_step, p.dt, p.v_max, self.next_speed(command),
-                                           h, vL, command) >= p.h_min + INNER
+        return _kernels.floor_rate_limited(self.S.fall, self.S.keep, p.u_min, p.lead_step, p.dt, p.v_max,
+                                           self.next_speed(command), h, vL, command) >= p.h_min + INNER
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         key = (h, vL)
@@ -405,7 +462,7 @@ class RateLimitedEgo:
         if not self._safe(lo, h, vL):
             return []
         if not self._safe(hi, h, vL):
-            top = _kernels.highest_safe_command(self.S.fall, p.u_min, p.lead_step, p.dt, p.v_max, self.v, h, vL,
-                                                lo, hi, p.h_min + INNER, SPEED_BISECTIONS)
+            top = _kernels.highest_safe_command(self.S.fall, self.S.keep, p.u_min, p.lead_step, p.dt, p.v_max, self.v,
+                                                h, vL, lo, hi, p.h_min + INNER, SPEED_BISECTIONS)
         low, high = self.next_speed(lo), min(self.next_speed(top), p.v_max)
         return [(low, high)] if low <= high else []

@@ -48,9 +48,11 @@ def cmd_falsify(args) -> int:
     if args.scheduler and args.workers is not None:
         return usage_error(args, "--workers does not apply with --scheduler (the Dask cluster has its own workers)")
     workers = None if args.scheduler else DEFAULT_WORKERS if args.workers is None else args.workers
-    if args.jerk is not None and args.only not in ("highway", "roads"):
-        return usage_error(args, "--jerk applies to highway-env's roads: add --only highway or --only roads")
-    cells = matrix(guardian=not args.no_guardian, only=args.only, jerk=args.jerk)
+    actuator = [name for name, given in (("--jerk", args.jerk is not None), ("--lag", args.lag is not None)) if given]
+    if actuator and args.only not in ("highway", "roads"):
+        return usage_error(args, f"{' and '.join(actuator)} {'applies' if len(actuator) == 1 else 'apply'} to "
+                                 "highway-env's roads: add --only highway or --only roads")
+    cells = matrix(guardian=not args.no_guardian, only=args.only, jerk=args.jerk, lag=args.lag)
     if args.agent:
         cells = [c for c in cells if c.agent in args.agent]
         if not cells:
@@ -109,6 +111,9 @@ def add_commands(sub) -> None:
     p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
                    help="the controlled cars' actuator changes their acceleration by at most J m/s^3 (with --only "
                         "highway or roads)")
+    p.add_argument("--lag", type=positive_number, default=None, metavar="TAU",
+                   help="the controlled cars' actuator follows a command as a first-order lag of time constant TAU "
+                        "seconds (with --only highway or roads)")
     p.add_argument("--workers", type=count(1), default=None, help=f"local processes (default {DEFAULT_WORKERS})")
     p.add_argument("--scheduler", default=None,
                    help="the address of an existing Dask scheduler (tcp://host:8786) to run on instead of local "

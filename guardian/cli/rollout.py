@@ -70,7 +70,7 @@ def cmd_rollout(args) -> int:
     spec = Rollout(args.env, "", action=args.action, guarded=not args.no_guardian, config=gcfg,
                    intention=intentions[0], disturbance=args.disturbance, traffic=args.traffic,
                    controlled=args.controlled, env_config=env_config, policy_algo=args.algo,
-                   max_seconds=args.max_seconds, jerk=args.jerk)
+                   max_seconds=args.max_seconds, jerk=args.jerk, lag=args.lag)
     try:  # every key the rollout sets itself, checked before the sets are loaded
         highway_env_config(spec)
         if overtake:
@@ -102,7 +102,7 @@ def cmd_rollout(args) -> int:
                 return usage_error(args, str(exc))
             r.update({"env": args.env, "agent": agent, "action": action_name(args.env, args.action, env_config),
                       "guardian": not args.no_guardian, "controlled": args.controlled or 1,
-                      "overapprox": args.overapprox, "jerk": args.jerk,
+                      "overapprox": args.overapprox, "jerk": args.jerk, "lag": args.lag,
                       "intention_aware": overtake and not args.no_guardian and not args.no_intention})
             if overtake:
                 r.update({"intention": intention, "disturbance": args.disturbance})
@@ -165,9 +165,10 @@ def _inapplicable(args, overtake: bool) -> str | None:
                                                                    else [])
             verb = "applies" if len(names) == 1 else "apply"
             return f"{', '.join(names)} {verb} to the overtake scenarios, not to {args.env}"
-    if args.jerk is not None and overtake:
-        return (f"--jerk applies to highway-env's roads; the overtake scenarios' sets let the ego's acceleration "
-                f"jump ({args.env})")
+    actuator = [name for name, given in (("--jerk", args.jerk is not None), ("--lag", args.lag is not None)) if given]
+    if actuator and overtake:
+        return (f"{' and '.join(actuator)} {'applies' if len(actuator) == 1 else 'apply'} to highway-env's roads; the "
+                f"overtake scenarios' sets let the ego's acceleration jump ({args.env})")
     if args.traffic is not None and args.env != OVERTAKE_ENV and overtake:
         return f"--traffic applies to {OVERTAKE_ENV} and the highway-v0 family; {args.env} has the two cars alone"
     if not overtake:
@@ -360,6 +361,10 @@ def add_commands(sub) -> None:
     p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
                    help="the controlled cars' actuator changes their acceleration by at most J m/s^3 (guarded or "
                         "not; the guardian's sets then carry the acceleration); highway-env's roads")
+    p.add_argument("--lag", type=positive_number, default=None, metavar="TAU",
+                   help="the controlled cars' actuator follows a command as a first-order lag of time constant TAU "
+                        "seconds (sampled each simulation step; with --jerk, within its bound too); highway-env's "
+                        "roads")
     p.add_argument("--no-guardian", action="store_true", help="drive without supervision")
     p.add_argument("--no-intention", action="store_true",
                    help="keep the guardian but pin it to the bounded-velocity set; overtake scenarios")

@@ -114,7 +114,7 @@ def _cells(args) -> list:
     def setting(traffic: str, sublane: bool):
         return SumoSetting(net=HighwayNet.of_road(args.road, lanes=args.lanes, length=args.length), seconds=args.seconds,
                            warmup=args.warmup, guarded=args.guarded, connection=args.connection, start=args.start,
-                           jerk=args.jerk,
+                           jerk=args.jerk, lag=args.lag,
                            traffic=Traffic(car_following=traffic, sublane=sublane, vehicles_per_hour=args.flow,
                                            sigma=args.sigma, emergency_decel=args.emergency_decel))
 
@@ -246,6 +246,9 @@ def add_commands(sub) -> None:
     p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
                    help="the guarded vehicles' actuator changes their acceleration by at most J m/s^3 (the guardian's "
                         "sets then carry the acceleration)")
+    p.add_argument("--lag", type=positive_number, default=None, metavar="TAU",
+                   help="the guarded vehicles' actuator follows a command as a first-order lag of time constant TAU "
+                        "seconds (sampled each step; with --jerk, within its bound too)")
     p.add_argument("--no-guardian", action="store_true", help="the agent drives unsupervised (for comparison)")
     p.add_argument("--through-service", action="store_true",
                    help="also ask every decision of a guardian serve scene session (started here) and count the "

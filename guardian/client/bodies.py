@@ -4,6 +4,8 @@ are the readings) sends them as they are; ``vehicle_body`` and ``guardian_body``
 from a bicycle kinematics and a ``GuardianConfig``. Lanes on the wire are slots (0 the leftmost)."""
 from __future__ import annotations
 
+import math
+
 
 def _f(v) -> float:
     return float(v)
@@ -46,11 +48,14 @@ def step_body(ego, scene, proposed, road, length: float, actuated: bool = False)
 
 def vehicle_body(kin, meta: bool, actuator=None) -> dict:
     """The ``vehicle`` of a scene session for a bicycle kinematics (``guardian.decide.kinematics.BicycleEgo``) and,
-    when its acceleration is rate-limited, its actuator (``itha.actuator.Actuator``, profile "hold")."""
+    when its acceleration cannot jump, its actuator (``itha.actuator.Actuator``, profile "hold": a jerk bound, a
+    lag or both)."""
     body = {"model": "bicycle", "length": _f(kin.length), "width": _f(kin.width), "dt": _f(kin.dt),
             "max_steering": _f(kin.max_steering), "max_acceleration": _f(kin.accel), "meta": bool(meta)}
-    if actuator is not None:
+    if actuator is not None and not math.isinf(actuator.jerk):
         body["max_jerk"] = _f(actuator.jerk)
+    if actuator is not None and actuator.lag:
+        body["lag"] = _f(actuator.lag)
     return body
 
 

@@ -21,13 +21,18 @@ steering]``, and returns the input to apply and a ``Decision``.
   judged as an entry (7.5) the moment it is touched and, when that is not responsible, is a lane the
   steering must not enter further (no path may overlap it) until the body is clear of it.
 * Fail-safe: the hardest braking down to standstill (never reversing), steering straight.
-* An actuator that limits the acceleration's change (``Actuator(jerk, profile="hold")``, declared by the world:
-  ``envs.actuator.JerkLimit``): the ego's own set is ``itha.actuator.RateLimitedSet`` bound to its speed and
-  acceleration now, the accelerations are those the actuator reaches (``[a - jerk dt, a + jerk dt] ∩ U``, the
-  speed stopping at 0), and the fail-safe brakes as hard as the actuator allows. A proposal beyond the reach is
-  a clip to the model (the actuator could not follow it either), not a safety override.
+* An actuator that limits the acceleration's change (``Actuator(jerk, lag, profile="hold")``, declared by the
+  world: ``envs.actuator.Actuated``): the ego's own set is ``itha.actuator.RateLimitedSet`` bound to its speed and
+  acceleration now, the accelerations are those the actuator applies next (``Actuator.reach``: ``[a - jerk dt,
+  a + jerk dt] ∩ U`` without a lag; the speed stopping at 0), and the fail-safe brakes as hard as the actuator
+  allows. A proposal beyond the reach is a clip to the model (the actuator could not follow it either), not a
+  safety override. Under a lag the driver's command is judged by the acceleration the lag makes of it, and a
+  changed one is answered as the command that applies the acceleration chosen (``Actuator.asks``); the
+  admissible accelerations are reported as commands too.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -39,6 +44,10 @@ from guardian.model.scene import EgoState, Scene
 from itha.actuator import RateLimitedSet
 from itha.car_following import CarFollowingParams
 from rcis.intervals import intersect_intervals, nearest_in_intervals
+
+UNCHANGED = 1e-9          # [m/s^2] an acceleration moved less than this is the proposal's (not an override)
+UNCHANGED_LAGGED = 2e-9   # under a lag: full throttle asks the reach's very end, which the intervals' rounding
+#                           shrink (kinematics.ROUNDING, 1e-9) leaves just outside, by float noise more or less
 
 
 class BicycleGuardian:
@@ -78,6 +87,19 @@ class BicycleGuardian:
         if self.ego_set is not None:
             bound = self.ego_set.bound(ego.speed, ego.acceleration)
             self.traffic, self.reach = self.plain.with_ego_set(bound), bound.commands
+
+    def _applies(self, ego: EgoState, command: float) -> float:
+        """The acceleration the ego's actuator applies over the next step for ``command`` (itself without a lag;
+        beyond the reach a proposal stays beyond it: the clip is the model's, and said)."""
+        act = self.actuator
+        return command if act is None or not act.lag else act.lagged(ego.acceleration, command, self.kin.dt)
+
+    def _command(self, ego: EgoState, applied: float) -> float:
+        """The command that makes the actuator apply ``applied`` (an acceleration of its reach)."""
+        act = self.actuator
+        if act is None or not act.lag:
+            return applied
+        return act.asks(ego.acceleration, applied, -self.config.traffic_accel, self.config.traffic_accel, self.kin.dt)
 
     def _accels(self, ego: EgoState, speeds) -> list:
         return self.kin.accel_for_speeds(ego.speed, speeds, self.reach)
@@ -173,31 +195,34 @@ class BicycleGuardian:
             steer, occupied, entry = self._steering(ego, scene, now, held, steer_prop, d, touched)
         entry = intersect_intervals(entry, touched_speeds)
         accel, limits = self._accelerations(ego, scene, occupied, entry, d)
+        wanted = self._applies(ego, a_prop)   # judged in the accelerations the actuator applies
+        unchanged = UNCHANGED if self.actuator is None or not self.actuator.lag else UNCHANGED_LAGGED
         if accel:
-            a = nearest_in_intervals(accel, a_prop)
-            if abs(a - a_prop) > 1e-9:
-                self._explain(ego, a_prop, a, limits, d)
+            chosen = nearest_in_intervals(accel, wanted)
+            if abs(chosen - wanted) > unchanged:
+                self._explain(ego, wanted, chosen, limits, d)
         elif self.reach is not None:
-            a = self.reach[0]   # the hardest braking the actuator allows; the speed stops at 0
+            chosen = self.reach[0]   # the hardest braking the actuator allows; the speed stops at 0
             d.level, d.changed = "failsafe", "failsafe"
             d.note("failsafe: no self-safe acceleration; braking as hard as the actuator allows, down to standstill")
         else:
             bound = self.config.traffic_accel  # a reversing ego (speed < 0) is stopped no harder than the bound
-            a = min(max(-bound, -ego.speed / kin.dt), bound)
+            chosen = min(max(-bound, -ego.speed / kin.dt), bound)
             d.level, d.changed = "failsafe", "failsafe"
             d.note("failsafe: no self-safe acceleration; braking as hard as the model allows, down to standstill")
+        a = a_prop if chosen == wanted else self._command(ego, chosen)   # under a lag, the command that applies it
+        throttled = abs(chosen - wanted) > unchanged
         d.applied = [a, steer]
         self.authorized |= self.lanes.slot_set(_entered(d))
         self.held |= self.authorized
         d.entered = sorted(self.lanes.itha_set(self.authorized))
         d.lanes = sorted(self.lanes.itha_set(self.held))  # never a lane entered unchecked
         d.touched = sorted(self.lanes.itha_set(touched - self.held))
-        d.admissible_acceleration = [list(r) for r in accel]
+        d.admissible_acceleration = [[self._command(ego, lo), self._command(ego, hi)] for lo, hi in accel]
         d.in_invariant_set = bool(accel)
-        if d.changed == "none" and (abs(a - a_prop) > 1e-9 or abs(steer - asked) > 1e-12):
-            d.changed = "throttle" if abs(steer - asked) <= 1e-12 else (
-                "steering" if abs(a - a_prop) <= 1e-9 else "both")
-            if steer_prop != asked and steer == steer_prop and (abs(a - a_prop) <= 1e-9 or d.clipped_to_model):
+        if d.changed == "none" and (throttled or abs(steer - asked) > 1e-12):
+            d.changed = "throttle" if abs(steer - asked) <= 1e-12 else ("steering" if not throttled else "both")
+            if steer_prop != asked and steer == steer_prop and (not throttled or d.clipped_to_model):
                 d.clipped_to_model = True  # the only change: clips to the model's bounds
         return np.array([a, steer]), d
 
@@ -398,13 +423,19 @@ class BicycleGuardian:
             if (a_prop > hi and a >= hi - 1e-8) or (a_prop < lo and a <= lo + 1e-8):   # speeds' rounding aside
                 d.clipped_to_model = True
                 d.note(f"acceleration clipped to what the actuator reaches from {ego.acceleration:.2f} m/s^2: "
-                       f"[{lo:.2f}, {hi:.2f}] (jerk {self.actuator.jerk:g} m/s^3)")
+                       f"[{lo:.2f}, {hi:.2f}] ({self._actuator_named()})")
                 return
         for name, speeds in limits:
             if not any(lo <= v_prop <= hi for lo, hi in speeds):
                 bound = max((hi for lo, hi in speeds if hi < v_prop), default=None)
                 d.note(f"acceleration limited by {name}" + (f": next speed at most {bound:.2f} m/s" if bound is not None
                                                              else ""))
+
+
+    def _actuator_named(self) -> str:
+        act = self.actuator
+        return ", ".join(([] if math.isinf(act.jerk) else [f"jerk {act.jerk:g} m/s^3"]) +
+                         ([f"lag {act.lag:g} s"] if act.lag else []))
 
 
 def _entered(d: Decision) -> list:

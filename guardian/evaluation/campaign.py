@@ -85,7 +85,8 @@ class Cell:
     guardian: bool = True
     controlled: int | None = None   # several controlled cars (MultiAgentAction)
     overapprox: str = "trivial"
-    jerk: float | None = None       # the controlled cars' actuator's jerk bound (envs.actuator.JerkLimit)
+    jerk: float | None = None       # the controlled cars' actuator's jerk bound (envs.actuator.Actuated)
+    lag: float | None = None        # and its first-order lag's time constant [s]
 
     @property
     def config(self) -> dict:
@@ -104,6 +105,8 @@ class Cell:
             out["overapprox"] = self.overapprox
         if self.jerk is not None:
             out["jerk"] = self.jerk
+        if self.lag is not None:
+            out["lag"] = self.lag
         if not self.guardian:
             out["no_guardian"] = True
         out.update({"episodes": 1, "seed": seed})
@@ -114,7 +117,7 @@ class Cell:
         return Rollout(self.env, self.agent, action=self.action, guarded=self.guardian,
                        config=GuardianConfig(overapprox=self.overapprox), library=library, intention=self.intention,
                        disturbance=self.disturbance, traffic=self.traffic, controlled=self.controlled,
-                       env_config=self.config, jerk=self.jerk)
+                       env_config=self.config, jerk=self.jerk, lag=self.lag)
 
 
 def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
@@ -122,15 +125,18 @@ def _cell(env, agent, action, setting, config, guardian, **kw) -> Cell:
                 guardian=guardian, **kw)
 
 
-def matrix(guardian: bool = True, only: str | None = None, jerk: float | None = None) -> list[Cell]:
-    """The campaign's cells (``only``: ``overtake``, ``highway`` or ``roads``; by default the first two); ``jerk``:
-    the controlled cars behind an actuator with that jerk bound (highway-env's roads only)."""
-    if jerk is not None:
+def matrix(guardian: bool = True, only: str | None = None, jerk: float | None = None,
+           lag: float | None = None) -> list[Cell]:
+    """The campaign's cells (``only``: ``overtake``, ``highway`` or ``roads``; by default the first two); ``jerk``,
+    ``lag``: the controlled cars behind an actuator with that jerk bound and lag (highway-env's roads only)."""
+    if jerk is not None or lag is not None:
         if only not in ("highway", "roads"):
-            raise ValueError("a jerk limit applies to highway-env's roads: choose only='highway' or 'roads'")
+            raise ValueError("an actuator (jerk limit, lag) applies to highway-env's roads: choose only='highway' or "
+                             "'roads'")
         import dataclasses
 
-        return [dataclasses.replace(c, jerk=float(jerk)) for c in matrix(guardian, only)]
+        return [dataclasses.replace(c, jerk=None if jerk is None else float(jerk), lag=None if lag is None else
+                                    float(lag)) for c in matrix(guardian, only)]
     cells = []
     if only == "roads":
         for env, actions, config in ROADS:

@@ -7,6 +7,8 @@ with the one ``Guardian`` and the ``HighwayTally`` on any supported environment:
 """
 from __future__ import annotations
 
+import math
+
 import os
 from dataclasses import dataclass, field
 
@@ -60,8 +62,11 @@ class Rollout:
         None: no cap.
     jerk : float, optional
         The controlled cars' actuator limits the change of their acceleration to this many m/s^3
-        (``envs.actuator.JerkLimit``, guarded or not; highway-env's roads only). None: highway-env's vehicles,
+        (``envs.actuator.Actuated``, guarded or not; highway-env's roads only). None: highway-env's vehicles,
         whose acceleration may jump.
+    lag : float, optional
+        The controlled cars' actuator moves their acceleration towards the command as a first-order lag of this
+        time constant [s] does (sampled each simulation step; with ``jerk``, within its bound too). None: no lag.
     """
 
     env_id: str
@@ -78,6 +83,7 @@ class Rollout:
     policy_algo: str | None = None
     max_seconds: float | None = MAX_SECONDS
     jerk: float | None = None
+    lag: float | None = None
 
     @property
     def overtake(self) -> bool:
@@ -165,10 +171,12 @@ def make_env(r: Rollout, render: bool = False):
                           f"({type(exc).__name__}: {exc})") from exc
     if render:  # highway-env's default ratio (2) makes videos play at double speed
         env.unwrapped.update_metadata(video_real_time_ratio=1)
-    if r.jerk is not None:
-        from envs.actuator import JerkLimit
+    if r.jerk is not None or r.lag is not None:
+        from envs.actuator import Actuated
+        from itha.actuator import Actuator
 
-        env = JerkLimit(env, r.jerk)
+        env = Actuated(env, Actuator(jerk=math.inf if r.jerk is None else float(r.jerk),
+                                     lag=0.0 if r.lag is None else float(r.lag), profile="hold"))
     return Guardian(env, r.library, r.config) if r.guarded else env
 
 

@@ -38,10 +38,11 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
 - ``ego_speed_reset``: steps after which SUMO had a guarded vehicle at another speed than the model's (moved by
   position onto a junction's internal lane, SUMO stands it still: an instant stop in front of the traffic). The
   model's speed is restored at once (``setPreviousSpeed``) and the step is counted.
-- ``actuator_clipped``: with a jerk limit (``SumoSetting.jerk``: the model applies an acceleration held over the
-  step and changed by at most ``jerk * dt`` from the last, the speed stopping at 0, and the guardian decides on
-  ``itha.actuator.RateLimitedSet``), vehicle-steps whose applied acceleration the actuator could not follow (0 by
-  construction with the guardian; the unguarded drivers' clips are counted too). None without a limit.
+- ``actuator_clipped``: with an actuator (``SumoSetting.jerk``, ``SumoSetting.lag``: the model applies an
+  acceleration held over the step, moved part of the way to the command under a lag and changed by at most ``jerk *
+  dt`` from the last, the speed stopping at 0, and the guardian decides on ``itha.actuator.RateLimitedSet``),
+  vehicle-steps whose command the jerk bound cut (``Actuator.cuts``; 0 by construction with the guardian; the
+  unguarded drivers' clips are counted too). None without an actuator.
 - ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
   vehicles' distance along the road, summed.
 - ``ramp_starts``: inserted guarded vehicles that started on the on-ramp (``SumoSetting.start``); ``merged``: of
@@ -67,7 +68,6 @@ from guardian.evaluation.sumo_agents import agent_of
 from guardian.evaluation.sumo_judge import Tracks, at_fault
 from guardian.evaluation.sumo_setting import SumoSetting, guarded_names, insert_guarded, sumo_args, traffic_accel_of
 from guardian.model.roads import RoadMap
-from itha.actuator import Actuator
 from itha.road import example8_order
 
 PLACEMENT_TOL = 1e-3  # [m] SUMO's placement of the guarded vehicle against the model's state
@@ -124,7 +124,7 @@ def _episode(traci, setting: SumoSetting, agent: str, rng, guarded: bool, config
            "guarded_lost": 0, "ego_speed_reset": 0, "traffic_car_steps": 0, "traffic_uncovered": 0,
            "traffic_uncovered_braking": 0, "traffic_uncovered_position": 0, "traffic_braking_excess": 0.0,
            "traffic_progress_excess_m": 0.0, "emergency_braking": 0, "teleports": 0, "distance_m": 0.0,
-           "ramp_starts": 0, "merged": 0, "actuator_clipped": None if setting.jerk is None else 0,
+           "ramp_starts": 0, "merged": 0, "actuator_clipped": None if setting.actuator is None else 0,
            "inserted": insert_guarded(traci, setting, frame, rng), "traffic_accel": accel, "step_length": dt}
     out["ramp_starts"] = int(out["inserted"] and setting.start == "ramp")
     if out["inserted"]:
@@ -146,7 +146,7 @@ class _Episode:
             self.kin = BicycleEgo(setting.step_length, config.traffic_accel, setting.ego_length, setting.ego_width,
                                   frame.lane_width, frame.n_lanes, setting.max_steering)
         self.model = BicycleModel(setting.ego_length, setting.step_length)
-        self.actuator = None if setting.jerk is None else Actuator(jerk=setting.jerk, profile="hold")
+        self.actuator = setting.actuator
         self.shadows, self.tracks, self.prev = Shadows(frame), Tracks(), {}
         self.cars: list = []
         self.left: list = []     # guarded vehicles that left the road or crashed (their tallies are kept)
@@ -293,10 +293,9 @@ class _Episode:
         if self.recorder is not None:
             self.recorder.decision(car.name, proposed, applied, d if self.guarded else None)
         a = float(applied[0])
-        if self.actuator is not None:   # the actuator follows at most jerk * dt from the last; the speed stops at 0
-            limited = self.actuator.follows(car.accel, a, setting.step_length)
-            out["actuator_clipped"] += limited != a
-            a = car.accel = limited
+        if self.actuator is not None:   # the lag's response, within jerk * dt of the last; the speed stops at 0
+            out["actuator_clipped"] += self.actuator.cuts(car.accel, a, setting.step_length)
+            a = car.accel = self.actuator.follows(car.accel, a, setting.step_length)
         car.expected = self.model.step(me.x, me.y, me.heading, me.speed, a, float(applied[1]))
         if self.actuator is not None and car.expected[3] < 0.0 <= me.speed:
             car.expected = (*car.expected[:3], 0.0)

@@ -21,6 +21,7 @@ from guardian.adapters.sumo.scene import Frame
 from guardian.adapters.sumo.shadows import SHADOW_TYPE
 from guardian.errors import ConfigError
 from guardian.evaluation.sumo_agents import DRIVER_TYPE
+from itha.actuator import Actuator
 
 EGO = "guarded"
 
@@ -42,6 +43,7 @@ class SumoSetting:
     connection: str = "libsumo"  # libsumo, traci or HOST:PORT (guardian.adapters.sumo.connection)
     start: str = "main"          # where the guarded vehicle starts: on a main lane, or on the on-ramp (one vehicle)
     jerk: float | None = None    # the guarded vehicles' actuator changes their acceleration by at most this [m/s^3]
+    lag: float | None = None     # and follows a command as a first-order lag of this time constant [s]
 
     def __post_init__(self):
         if self.guarded < 1:
@@ -56,8 +58,17 @@ class SumoSetting:
             raise ConfigError(f"start must be 'main' or 'ramp', got {self.start!r}")
         if self.jerk is not None and not (math.isfinite(self.jerk) and self.jerk > 0):
             raise ConfigError(f"jerk must be a positive finite number [m/s^3] (None: no limit), got {self.jerk}")
+        if self.lag is not None and not (math.isfinite(self.lag) and self.lag > 0):
+            raise ConfigError(f"lag must be a positive finite time constant [s] (None: no lag), got {self.lag}")
         if self.start == "ramp" and not (self.net.ramp_at and self.guarded == 1):
             raise ConfigError("start 'ramp' needs a road with an on-ramp (ramp_at) and one guarded vehicle")
+
+    @property
+    def actuator(self) -> Actuator | None:
+        """The guarded vehicles' actuator (held over a step; None: the acceleration may jump)."""
+        if self.jerk is None and self.lag is None:
+            return None
+        return Actuator(jerk=math.inf if self.jerk is None else self.jerk, lag=self.lag or 0.0, profile="hold")
 
 
 def traffic_accel_of(traci) -> float:

@@ -37,7 +37,7 @@ Slot = Annotated[int, Field(strict=True, ge=0, le=63)]
 MAX_CARS = 512
 MODEL_FIELDS = {"bicycle": ("max_steering", "max_acceleration"),
                 "point_mass": ("acceleration", "lateral_speed", "lateral_scale")}
-MODEL_OPTIONS = {"bicycle": ("meta", "max_jerk"), "point_mass": ()}
+MODEL_OPTIONS = {"bicycle": ("meta", "max_jerk", "lag"), "point_mass": ()}
 
 
 class _Strict(BaseModel):
@@ -105,8 +105,11 @@ class VehicleSpec(_Strict):
       one bound for the ego's braking and the traffic's); input ``[acceleration, steering]``; ``meta``: the
       stack's own controller steers lane changes (steps then give the target lane); ``max_jerk`` [m/s^3]: its
       actuator holds an acceleration over a step and changes it by at most ``max_jerk * dt`` from one step to the
-      next, the speed stopping at 0 (each step then gives the ego's ``acceleration`` applied over the last step,
-      and the guardian decides on ``itha.actuator.RateLimitedSet``, answering only accelerations it reaches);
+      next, the speed stopping at 0; ``lag`` [s]: its actuator follows a command as a first-order lag of that time
+      constant, sampled each step (the acceleration held over a step moves the share ``1 - exp(-dt / lag)`` of the
+      way to the command; with ``max_jerk``, within its bound too). With either, each step gives the ego's
+      ``acceleration`` applied over the last step, the guardian decides on ``itha.actuator.RateLimitedSet`` and
+      answers only commands whose applied acceleration it admits;
     * ``point_mass``: the overtake model (6.3) of Chapter 6 among traffic, input ``[a_ex, v_ey]``, with the
       service's intention library: ``acceleration`` and ``lateral_speed`` its bounds and ``dt`` its period
       (they must be the library's), ``lateral_scale`` metres per unit of ``y_e``. Steps name the ``lead``.
@@ -121,6 +124,7 @@ class VehicleSpec(_Strict):
     max_acceleration: Positive | None = Field(None, le=20)
     meta: StrictBool | None = None
     max_jerk: Positive | None = Field(None, le=10000)
+    lag: Positive | None = Field(None, le=60)
     acceleration: tuple[Finite, Finite] | None = None
     lateral_speed: tuple[Finite, Finite] | None = None
     lateral_scale: Positive | None = Field(None, le=20)
@@ -131,11 +135,11 @@ class VehicleSpec(_Strict):
         if self.model not in MODEL_FIELDS:
             return (f"vehicle model {self.model!r} is not supervised: scene sessions decide for the kinematic "
                     "bicycle ('bicycle', as highway-env's vehicles move) and the overtake point mass of (6.3) "
-                    "('point_mass'); a dynamic model (tyre slip, actuator lag) is neither")
+                    "('point_mass'); a dynamic model (tyre slip) is neither")
         own = set(MODEL_FIELDS[self.model]) | set(MODEL_OPTIONS[self.model])
         foreign = sorted(f for fields in MODEL_FIELDS.values() for f in fields if f not in own
                          and getattr(self, f) is not None) + (["meta"] if "meta" not in own and self.meta else []) \
-            + (["max_jerk"] if "max_jerk" not in own and self.max_jerk is not None else [])
+            + [f for f in ("max_jerk", "lag") if f not in own and getattr(self, f) is not None]
         if foreign:
             return f"vehicle field(s) {', '.join(foreign)} do not apply to model {self.model!r}"
         missing = [f for f in MODEL_FIELDS[self.model] if getattr(self, f) is None]
@@ -357,7 +361,8 @@ class _Bicycle:
         else:
             kin = BicycleEgo(v.dt, c.traffic_accel, v.length, v.width, road.lane_width, road.n_lanes, v.max_steering)
         self.scene = scene
-        self.actuator = None if v.max_jerk is None else Actuator(jerk=v.max_jerk, profile="hold")
+        self.actuator = None if v.max_jerk is None and v.lag is None else Actuator(
+            jerk=math.inf if v.max_jerk is None else v.max_jerk, lag=v.lag or 0.0, profile="hold")
         self.guard = BicycleGuardian(kin, c, meta=bool(v.meta), actuator=self.actuator)
         self.coverage = ModelCoverage(v.dt, (-c.traffic_accel, c.traffic_accel), c.v_max, ego_kinematics=kin,
                                       ego_stops_at_zero=self.actuator is not None, reversing=c.reversing)
@@ -368,9 +373,9 @@ class _Bicycle:
         target = e.target_lane if e.target_lane is not None else lane
         front = e.front if e.front is not None else e.x + self.scene.vehicle.length / 2
         if (e.acceleration is None) != (self.actuator is None):
-            raise ServiceError(422, "ego.acceleration is required: the vehicle declares max_jerk (what its actuator "
-                                    "applied over the last step)" if self.actuator is not None else
-                               "ego.acceleration applies to a vehicle that declares max_jerk only")
+            raise ServiceError(422, "ego.acceleration is required: the vehicle declares max_jerk or lag (what its "
+                                    "actuator applied over the last step)" if self.actuator is not None else
+                               "ego.acceleration applies to a vehicle that declares max_jerk or lag only")
         return EgoState(front, e.y, e.heading, e.speed, lane, target, e.x, e.acceleration or 0.0)
 
     def _scene(self, e: EgoSpec, state: EgoState, cars):
@@ -389,7 +394,10 @@ class _Bicycle:
         state = self.state(req.ego)
         applied, d = self.guard.step(state, self._scene(req.ego, state, req.cars), req.input)
         e = req.ego
-        return applied, d, {"applied": np.asarray(applied, float), "ego": (e.x, e.speed, e.heading)}
+        moved_by = np.array(applied, float)   # a copy: the model moves the car by what its actuator applies
+        if self.actuator is not None:
+            moved_by[0] = self.actuator.follows(state.acceleration, float(applied[0]), self.scene.vehicle.dt)
+        return applied, d, {"applied": moved_by, "ego": (e.x, e.speed, e.heading)}
 
 
 class _PointMass:

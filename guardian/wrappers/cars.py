@@ -32,8 +32,18 @@ class GuardedCar:
         """Note one simulation step's decision and what the model monitor saw of it."""
         self.calls += 1
         self.decisions.append(decision)
-        for k, n in self.monitor.observe(base, decision.applied, self.vehicle).items():
+        for k, n in self.monitor.observe(base, self._model_input(decision.applied), self.vehicle).items():
             self.monitor_counts[k] += n
+
+
+    def _model_input(self, applied):
+        """The input the model moves the car by: behind an actuator (``envs.actuator.Actuated``) the acceleration
+        the actuator makes of the command (under a lag, part of the way to it)."""
+        actuator = getattr(self.vehicle, "actuator", None)
+        if actuator is None:
+            return applied
+        accel = actuator.follows(self.vehicle.applied_acceleration, float(applied[0]), self.monitor.dt)
+        return [accel, *applied[1:]]
 
 
 class Hook:

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 import envs  # noqa: F401
-from envs.actuator import JerkLimit
+from envs.actuator import Actuated, JerkLimit
 from guardian.errors import ConfigError
 from guardian.evaluation.rollouts import Rollout, highway_rollouts
 from guardian.wrappers.guardian import Guardian
+from itha.actuator import Actuator
 
 FAST = {"action": {"type": "ContinuousAction"}}
 
@@ -21,7 +22,7 @@ def test_the_actuator_follows_the_rate_limit_counts_its_clips_and_never_reverses
     ego = env.unwrapped.vehicle
     dt = 1 / env.unwrapped.config["simulation_frequency"]
     per_policy = env.unwrapped.config["simulation_frequency"] // env.unwrapped.config["policy_frequency"]
-    assert info["actuator"] == {"jerk": 5.0, "clipped_steps": 0}
+    assert info["actuator"] == {"jerk": 5.0, "lag": 0.0, "clipped_steps": 0}
     speeds, accels, clips = [ego.speed], [ego.applied_acceleration], []
     for k in range(40):
         _, _, term, trunc, info = env.step(np.array([-1.0, 0.0]))   # full braking, asked at once
@@ -38,20 +39,40 @@ def test_the_actuator_follows_the_rate_limit_counts_its_clips_and_never_reverses
     assert accels[1] == pytest.approx(-5.0 * dt * per_policy)   # a ramp, not a jump
 
 
+def test_under_a_lag_the_acceleration_goes_part_of_the_way_each_step_and_no_lag_is_a_clip():
+    tau = 0.5
+    env = Actuated(gym.make("highway-fast-v0", config=dict(FAST, vehicles_count=0)), Actuator(lag=tau, profile="hold"))
+    _, info = env.reset(seed=0)
+    ego = env.unwrapped.vehicle
+    config = env.unwrapped.config
+    dt, per_policy = 1 / config["simulation_frequency"], config["simulation_frequency"] // config["policy_frequency"]
+    assert info["actuator"] == {"jerk": None, "lag": tau, "clipped_steps": 0}
+    _, _, _, _, info = env.step(np.array([-1.0, 0.0]))   # full braking asked: -5 m/s^2 on highway-env's scale
+    assert ego.applied_acceleration == pytest.approx(-5.0 * (1 - np.exp(-per_policy * dt / tau)), abs=1e-12)
+    assert info["actuator"]["clipped_steps"] == 0
+
+
 @pytest.mark.parametrize("make,why", [
     (lambda: JerkLimit(gym.make("guardian/Overtake-v0"), 5.0), "overtake"),
     (lambda: JerkLimit(Guardian(gym.make("highway-fast-v0")), 5.0), "before the guardian"),
     (lambda: JerkLimit(gym.make("highway-fast-v0"), 0.0), "positive finite"),
     (lambda: JerkLimit(gym.make("highway-fast-v0"), float("inf")), "positive finite"),
+    (lambda: Actuated(gym.make("highway-fast-v0"), Actuator(profile="hold")), "limits nothing"),
+    (lambda: Actuated(gym.make("highway-fast-v0"), Actuator(jerk=5.0)), "hold"),
+    (lambda: Actuated(gym.make("highway-fast-v0"), Actuator(jerk=5.0, delay=1, profile="hold")), "without a delay"),
+    (lambda: Actuated(gym.make("highway-fast-v0"), 0.5), "itha.actuator.Actuator"),
 ])
 def test_what_does_not_apply_is_refused(make, why):
     with pytest.raises(ConfigError, match=why):
         make()
 
 
-@pytest.mark.parametrize("agent,action", [("brake_check", "continuous"), ("seek", "meta")])
-def test_the_guarded_car_asks_only_for_what_the_actuator_reaches_and_causes_no_crash(agent, action):
-    r = highway_rollouts(Rollout("highway-fast-v0", agent, action=action, jerk=5.0), 4, seed=3)
+@pytest.mark.parametrize("agent,action,jerk,lag", [("brake_check", "continuous", 5.0, None),
+                                                   ("seek", "meta", 5.0, None),
+                                                   ("brake_check", "continuous", None, 0.5),
+                                                   ("seek", "continuous", 10.0, 0.3)])
+def test_the_guarded_car_asks_only_for_what_the_actuator_reaches_and_causes_no_crash(agent, action, jerk, lag):
+    r = highway_rollouts(Rollout("highway-fast-v0", agent, action=action, jerk=jerk, lag=lag), 4, seed=3)
     assert r["actuator_clipped_steps"] == 0
     assert r["ego_at_fault_collisions"] == 0 and r["unchecked_entries"] == 0 and r["reversing_steps"] == 0
     assert r["model_violation_steps"] == 0

@@ -89,8 +89,13 @@ def test_without_actuator_dynamics_the_set_is_the_exact_closed_form():
 
 
 def test_actuator_declarations_are_checked():
-    with pytest.raises(ValueError, match="lag is not implemented"):
+    with pytest.raises(ValueError, match="held acceleration"):
         Actuator(lag=0.3)
+    for bad in (-0.1, math.nan, math.inf, "0.3", True):
+        with pytest.raises(ValueError, match="time constant"):
+            Actuator(lag=bad, profile="hold")
+    with pytest.raises(ValueError, match="no lag"):
+        ActuatedSet(CarFollowingParams(integration="exact"), Actuator(lag=0.3, profile="hold"))
     with pytest.raises(ValueError, match="whole number of steps"):
         Actuator(delay=0.2)
     with pytest.raises(ValueError, match="jerk"):
@@ -194,11 +199,42 @@ def test_rate_limited_without_a_jerk_bound_is_the_closed_form():
         assert S.contains((v, h, vL, a)) == M.contains([[v, h, vL]])[0]
 
 
-@pytest.mark.parametrize("jerk", [10.0, 5.0, 2.0])
-def test_rate_limited_set_is_invariant_under_its_admissible_commands(jerk):
-    """A falsifier: from states inside, any command the bound set admits (and the hardest braking) keeps the
-    next state inside whatever the lead does within D, and the gap above h_min, for 60 steps."""
-    S = RateLimitedSet(HE, Actuator(jerk=jerk, profile="hold"))
+ACTUATORS = {"jerk 10": Actuator(jerk=10.0, profile="hold"), "jerk 5": Actuator(jerk=5.0, profile="hold"),
+             "jerk 2": Actuator(jerk=2.0, profile="hold"), "lag 0.5 s": Actuator(lag=0.5, profile="hold"),
+             "jerk 5, lag 0.3 s": Actuator(jerk=5.0, lag=0.3, profile="hold")}
+
+
+def test_a_lag_moves_the_held_acceleration_part_of_the_way():
+    """The lag's step response sampled each step, within the jerk bound; ``asks`` inverts it on the reach."""
+    dt, lag = 1 / 15, 0.5
+    A = Actuator(lag=lag, profile="hold")
+    assert A.follows(0.0, 1.0, dt) == pytest.approx(1 - math.exp(-dt / lag), abs=1e-15)
+    a = 0.0
+    for _ in range(15):   # one second of the command 1: the continuous lag's 1 - e^-2
+        a = A.follows(a, 1.0, dt)
+    assert a == pytest.approx(1 - math.exp(-1.0 / lag), abs=1e-12)
+    assert Actuator(jerk=3.0, lag=0.05, profile="hold").follows(0.0, 5.0, dt) == pytest.approx(3.0 * dt)
+    rng = np.random.default_rng(5)
+    for act in ACTUATORS.values():
+        for _ in range(500):
+            last = rng.uniform(-5, 5)
+            lo, hi = act.reach(last, -5.0, 5.0, dt)
+            for end, bound in ((lo, -5.0), (hi, 5.0)):   # an end the lag sets is asked as U's bound itself
+                if act.lag and act.lagged(last, bound, dt) == end:
+                    assert act.asks(last, end, -5.0, 5.0, dt) == bound
+            for target in (lo, hi, rng.uniform(lo, hi)):
+                u = act.asks(last, target, -5.0, 5.0, dt)
+                assert -5.0 <= u <= 5.0 and act.follows(last, u, dt) == pytest.approx(target, abs=1e-12)
+                assert abs(act.lagged(last, u, dt) - act.follows(last, u, dt)) <= 1e-12   # never cut by the jerk
+
+
+@pytest.mark.parametrize("name", list(ACTUATORS))
+def test_rate_limited_set_is_invariant_under_its_admissible_commands(name):
+    """A falsifier: from states inside, any acceleration the bound set admits (and the hardest braking), asked of
+    the actuator as a command (``Actuator.asks``) and applied as the world applies it (``Actuator.follows``),
+    keeps the next state inside whatever the lead does within D, and the gap above h_min, for 60 steps."""
+    act = ACTUATORS[name]
+    S = RateLimitedSet(HE, act)
     rng = np.random.default_rng(2)
     runs = 0
     while runs < 150:
@@ -215,18 +251,22 @@ def test_rate_limited_set_is_invariant_under_its_admissible_commands(jerk):
             lo, hi = bound.commands
             top = speeds[0][1]
             c_hi = min(hi, (top - v) / HE.dt - 1e-9) if top > 0 else lo
-            command = rng.choice([lo, c_hi, rng.uniform(lo, max(lo, c_hi))])
-            assert lo <= command <= hi
-            x = euler_step(x, command, rng.choice([HE.d_min, HE.d_max, rng.uniform(HE.d_min, HE.d_max)]))
+            target = rng.choice([lo, c_hi, rng.uniform(lo, max(lo, c_hi))])
+            assert lo <= target <= hi
+            command = act.asks(a, target, HE.u_min, HE.u_max, HE.dt)
+            assert HE.u_min <= command <= HE.u_max
+            applied = act.follows(a, command, HE.dt)
+            x = euler_step(x, applied, rng.choice([HE.d_min, HE.d_max, rng.uniform(HE.d_min, HE.d_max)]))
             assert x[1] >= HE.h_min - 1e-9 and S.contains(x), f"left the set at {x}"
 
 
-@pytest.mark.parametrize("jerk", [10.0, 5.0])
-def test_outside_the_rate_limited_set_the_hardest_braking_lead_wins(jerk):
+@pytest.mark.parametrize("name", ["jerk 10", "jerk 5", "lag 0.5 s", "jerk 5, lag 0.3 s"])
+def test_outside_the_rate_limited_set_the_hardest_braking_lead_wins(name):
     """Maximality: from a state outside (in the safe set), the lead braking at d_min brings the gap below h_min
     whatever commands the actuator follows; the set that lets the acceleration jump keeps some of these states,
     so it would be wrong here."""
-    S, M = RateLimitedSet(HE, Actuator(jerk=jerk, profile="hold")), MaximalSet(HE)
+    act = ACTUATORS[name]
+    S, M = RateLimitedSet(HE, act), MaximalSet(HE)
     rng = np.random.default_rng(3)
     seen = kept_by_jump = 0
     while seen < 80:
@@ -237,7 +277,7 @@ def test_outside_the_rate_limited_set_the_hardest_braking_lead_wins(jerk):
         kept_by_jump += bool(M.contains([x[:3]])[0])
         y = x
         for _ in range(2000):   # the best the ego can do: brake as hard as the actuator allows
-            y = euler_step(y, S.reach(y[3])[0], HE.d_min)
+            y = euler_step(y, act.follows(y[3], HE.u_min, HE.dt), HE.d_min)
             if y[1] < HE.h_min:
                 break
         assert y[1] < HE.h_min, f"{x} is outside, yet the hardest braking kept h >= h_min"
@@ -251,3 +291,5 @@ def test_rate_limited_set_refuses_what_it_does_not_model():
         RateLimitedSet(HE, Actuator(jerk=10, delay=1, profile="hold"))
     with pytest.raises(ValueError, match="hold"):
         RateLimitedSet(HE, Actuator(jerk=10))
+    with pytest.raises(ValueError, match="would not end"):
+        RateLimitedSet(HE, Actuator(lag=1e12, profile="hold"))

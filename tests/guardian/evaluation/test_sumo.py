@@ -162,10 +162,12 @@ def test_through_the_service_every_decision_is_the_in_process_one_to_the_bit(lib
 
         r = run_episode(SumoSetting(seconds=15.0, warmup=30.0), "seek", seed=1, ask=ask)
         jerky = run_episode(SumoSetting(seconds=15.0, warmup=30.0, jerk=5.0), "seek", seed=1, ask=ask)
+        lagged = run_episode(SumoSetting(seconds=15.0, warmup=30.0, jerk=10.0, lag=0.3), "seek", seed=1, ask=ask)
     assert r["service_steps"] == r["steps"] > 0 and r["service_disagreements"] == 0, r
     assert r["safety_overrides"] > 0
-    assert jerky["service_steps"] == jerky["steps"] > 0 and jerky["service_disagreements"] == 0, jerky
-    assert jerky["actuator_clipped"] == 0 and jerky["safety_overrides"] > 0
+    for run in (jerky, lagged):
+        assert run["service_steps"] == run["steps"] > 0 and run["service_disagreements"] == 0, run
+        assert run["actuator_clipped"] == 0 and run["safety_overrides"] > 0
 
 
 def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
@@ -194,7 +196,7 @@ def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
                        (["--connection", "127.0.0.1:1", "--workers", "2"], "drives one SUMO server"),
                        (["--write-scenario", "x", "--campaign"], "--write-scenario writes one setting"),
                        (["--rerun", "x.rrd", "--workers", "2"], "--rerun records in this process"),
-                       (["--jerk", "0"], "--jerk")):
+                       (["--jerk", "0"], "--jerk"), (["--lag", "-1"], "--lag")):
         done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
         lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
         assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
@@ -544,3 +546,13 @@ def test_a_jerk_limited_guarded_vehicle_asks_only_for_what_its_actuator_reaches_
     unguarded = summary([run_episode(setting, "random", 0, guarded=False)])
     assert unguarded["actuator_clipped"] > 0
     assert summary([run_episode(MERGE, "random", 0)])["actuator_clipped"] is None
+
+
+def test_a_lagged_guarded_vehicle_causes_no_collision_and_its_model_covers_it():
+    """The guarded vehicles' actuator follows a command as a 0.5 s lag (``SumoSetting.lag``): no jerk clip, no
+    collision at their fault, every step of theirs moved as the model says."""
+    setting = replace(MERGE, lag=0.5)
+    guarded = summary([run_episode(replace(setting, guarded=g), agent, seed)
+                       for agent, g in (("seek", 1), ("reckless", 3)) for seed in range(2)])
+    assert guarded["actuator_clipped"] == 0 and guarded["at_fault"] == 0 and guarded["ego_uncovered"] == 0, guarded
+    assert guarded["safety_overrides"] > 0

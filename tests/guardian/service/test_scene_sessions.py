@@ -130,6 +130,9 @@ def test_a_point_mass_session_decides_as_the_overtake_guardian_among_traffic(tra
     ({"model": "point_mass", "length": 5.0, "width": 2.0, "dt": 0.1, "acceleration": [-3, 3],
       "lateral_speed": [-1.8, 1.8], "lateral_scale": 2.0, "max_jerk": 5.0}, "max_jerk do not apply"),
     ({**BICYCLE, "max_jerk": 0.0}, "max_jerk"),
+    ({**BICYCLE, "lag": 0.0}, "lag"),
+    ({"model": "point_mass", "length": 5.0, "width": 2.0, "dt": 0.1, "acceleration": [-3, 3],
+      "lateral_speed": [-1.8, 1.8], "lateral_scale": 2.0, "lag": 0.3}, "lag do not apply"),
 ])
 def test_a_vehicle_model_the_guardian_cannot_guarantee_is_refused_by_name(client, vehicle, says):
     with pytest.raises(ServiceError) as err:
@@ -178,7 +181,32 @@ def test_a_vehicle_that_declares_a_jerk_limit_gets_only_accelerations_its_actuat
     with client.create_scene_session(ROAD, BICYCLE) as session:
         with pytest.raises(ServiceError) as err:
             session.step(ego={"x": 0.0, "y": 4.0, "speed": 20.0, "acceleration": 0.0}, cars=[], input=[0.0, 0.0])
-        assert err.value.status == 422 and "max_jerk only" in err.value.message
+        assert err.value.status == 422 and "max_jerk or lag only" in err.value.message
+
+
+def test_a_vehicle_that_declares_a_lag_gets_the_in_process_command_and_its_coverage_fits(client):
+    """``lag``: the in-process lagged guardian's command to the bit; the ego's next speed moved by what the lag
+    applies fits the model (coverage), the command itself would not."""
+    from guardian.decide.bicycle import BicycleGuardian
+    from guardian.decide.kinematics import BicycleEgo
+    from guardian.model.scene import Car, EgoState, Scene
+    from itha.actuator import Actuator
+
+    lagged, dt = {**BICYCLE, "lag": 0.5}, BICYCLE["dt"]
+    kin = BicycleEgo(dt, 6.0, 5.0, 2.0, 4.0, 3, BICYCLE["max_steering"])
+    guard = BicycleGuardian(kin, GuardianConfig(), False, Actuator(lag=0.5, profile="hold"))
+    x, v, a = 0.0, 20.0, 1.0
+    with client.create_scene_session(ROAD, lagged) as session:
+        for _ in range(3):
+            record = session.step(ego={"x": x, "y": 4.0, "speed": v, "acceleration": a},
+                                  cars=[car("L", x + 42.0, 4.0, 10.0)], input=[6.0, 0.0])
+            ego = EgoState(x + 2.5, 4.0, 0.0, v, 1, 1, x, a)
+            scene = Scene(Car(x + 2.5, v, frozenset(), 5.0, "ego"), (Car(x + 44.5, 10.0, frozenset({2}), 5.0, "L"),), 3)
+            assert record["applied"][0] == float(guard.step(ego, scene, [6.0, 0.0])[0][0])
+            assert record["coverage"]["totals"]["ego"] == 0
+            a = guard.actuator.follows(a, record["applied"][0], dt)
+            x, v = x + dt * v, v + dt * a
+    assert record["overridden"]
 
 
 # ---- lanes from bodies, lane changes, coverage ----------------------------------------------------------------
