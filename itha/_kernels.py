@@ -173,7 +173,7 @@ def floor_rate_limited(fall, keep, u_min, lead_step, dt, v_max, v, h, vL, a):
         phi += dt * (vL - v)
         if phi < best:
             best = phi
-        a = max(a - fall, keep * a + (1.0 - keep) * u_min)
+        a = max(a - fall, min(max(keep * a + (1.0 - keep) * u_min, min(a, u_min)), max(a, u_min)))   # lagged(a, u_min)
         v = max(v + dt * a, 0.0)
         if v > v_max:
             return -math.inf

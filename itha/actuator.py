@@ -50,6 +50,7 @@ BISECTIONS = 60
 INF = math.inf
 PROFILES = ("ramp", "hold")
 CUT_ROUNDING = 1e-9   # [m/s^2] see Actuator.cuts
+LAG_MAX = 60.0        # [s] a longer time constant is no vehicle's actuator (and its set's braking barely ends)
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,8 @@ class Actuator:
         if isinstance(self.lag, bool) or not (isinstance(self.lag, (int, float)) and math.isfinite(self.lag)
                                                and self.lag >= 0):
             raise ValueError(f"Actuator.lag is a time constant [s] >= 0 (0: none), got {self.lag!r}")
+        if self.lag > LAG_MAX:
+            raise ValueError(f"Actuator.lag {self.lag:g} s is beyond {LAG_MAX:g} s: no vehicle's actuator lags so long")
         if self.lag and self.profile != "hold":
             raise ValueError("Actuator.lag is modelled on a held acceleration (sampled each step): declare "
                              "Actuator(lag=..., profile=\"hold\"); a ramp under a lag is not modelled")
@@ -86,7 +89,8 @@ class Actuator:
         if not self.lag:
             return asked
         keep = self.keep(dt)
-        return keep * last + (1.0 - keep) * asked   # the floor kernel's own arithmetic (_kernels.floor_rate_limited)
+        blend = keep * last + (1.0 - keep) * asked   # the floor kernel's own arithmetic (_kernels.floor_rate_limited)
+        return min(max(blend, min(last, asked)), max(last, asked))   # never beyond either end by rounding
 
     def follows(self, last: float, asked: float, dt: float) -> float:
         """The acceleration a held-profile actuator applies over a step of ``dt`` when asked for ``asked`` after

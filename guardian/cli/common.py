@@ -91,6 +91,17 @@ def positive_number(text: str) -> float:
     return value
 
 
+def lag_seconds(text: str) -> float:
+    """An actuator's lag: a time constant in (0, itha.actuator.LAG_MAX] seconds."""
+    from itha.actuator import LAG_MAX
+
+    value = positive_number(text)
+    if value > LAG_MAX:
+        raise argparse.ArgumentTypeError(f"must be at most {LAG_MAX:g} s (no vehicle's actuator lags longer), got "
+                                         f"{text!r}")
+    return value
+
+
 def _writable_folder_error(folder: Path) -> str | None:
     """Why files cannot be created in ``folder`` or in the folders that would be made for it, or None."""
     existing = folder

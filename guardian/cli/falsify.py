@@ -1,7 +1,7 @@
 """``guardian falsify``: the falsification campaign (``guardian.evaluation.campaign``) and its table."""
 from __future__ import annotations
 
-from guardian.cli.common import count, emit, positive_number, progress_bar, usage_error
+from guardian.cli.common import count, emit, lag_seconds, positive_number, progress_bar, usage_error
 
 DEFAULT_WORKERS = 2
 
@@ -111,7 +111,7 @@ def add_commands(sub) -> None:
     p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
                    help="the controlled cars' actuator changes their acceleration by at most J m/s^3 (with --only "
                         "highway or roads)")
-    p.add_argument("--lag", type=positive_number, default=None, metavar="TAU",
+    p.add_argument("--lag", type=lag_seconds, default=None, metavar="TAU",
                    help="the controlled cars' actuator follows a command as a first-order lag of time constant TAU "
                         "seconds (with --only highway or roads)")
     p.add_argument("--workers", type=count(1), default=None, help=f"local processes (default {DEFAULT_WORKERS})")

@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from guardian.cli.common import (Parser, count, emit, intention_name, json_option, library_options, load_library,
-                                 output_file, output_folder, positive_number, progress_bar, usage_error)
+                                 lag_seconds, output_file, output_folder, positive_number, progress_bar, usage_error)
 from guardian.evaluation import MAX_SECONDS
 
 OVERTAKE_ONLY = ("intention", "disturbance", "no_intention", "horizon")
@@ -361,7 +361,7 @@ def add_commands(sub) -> None:
     p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
                    help="the controlled cars' actuator changes their acceleration by at most J m/s^3 (guarded or "
                         "not; the guardian's sets then carry the acceleration); highway-env's roads")
-    p.add_argument("--lag", type=positive_number, default=None, metavar="TAU",
+    p.add_argument("--lag", type=lag_seconds, default=None, metavar="TAU",
                    help="the controlled cars' actuator follows a command as a first-order lag of time constant TAU "
                         "seconds (sampled each simulation step; with --jerk, within its bound too); highway-env's "
                         "roads")

@@ -4,7 +4,8 @@ from __future__ import annotations
 import contextlib
 import itertools
 
-from guardian.cli.common import count, emit, number, output_file, output_folder, positive_number, usage_error
+from guardian.cli.common import (count, emit, lag_seconds, number, output_file, output_folder, positive_number,
+                                  usage_error)
 from guardian.cli.progress import ProgressBar
 from guardian.evaluation.sumo_agents import AGENTS
 
@@ -246,7 +247,7 @@ def add_commands(sub) -> None:
     p.add_argument("--jerk", type=positive_number, default=None, metavar="J",
                    help="the guarded vehicles' actuator changes their acceleration by at most J m/s^3 (the guardian's "
                         "sets then carry the acceleration)")
-    p.add_argument("--lag", type=positive_number, default=None, metavar="TAU",
+    p.add_argument("--lag", type=lag_seconds, default=None, metavar="TAU",
                    help="the guarded vehicles' actuator follows a command as a first-order lag of time constant TAU "
                         "seconds (sampled each step; with --jerk, within its bound too)")
     p.add_argument("--no-guardian", action="store_true", help="the agent drives unsupervised (for comparison)")

@@ -101,6 +101,10 @@ class BicycleGuardian:
             return applied
         return act.asks(ego.acceleration, applied, -self.config.traffic_accel, self.config.traffic_accel, self.kin.dt)
 
+    def _in_model(self, ego: EgoState) -> bool:
+        """Is the ego's acceleration now one its actuator can apply (within U)?"""
+        return -self.config.traffic_accel <= ego.acceleration <= self.config.traffic_accel
+
     def _accels(self, ego: EgoState, speeds) -> list:
         return self.kin.accel_for_speeds(ego.speed, speeds, self.reach)
 
@@ -171,6 +175,8 @@ class BicycleGuardian:
             ``refused`` holds the target of a meta lane change to abandon.
         """
         a_prop, asked = (float(v) for v in proposed)
+        if not (math.isfinite(a_prop) and math.isfinite(asked)):
+            raise ValueError(f"the proposal [{a_prop}, {asked}] is not finite: a supervisor acts only on what it checked")
         kin = self.kin
         self._bind(ego)
         d = Decision(proposed=[a_prop, asked], applied=[], changed="none")
@@ -195,6 +201,10 @@ class BicycleGuardian:
             steer, occupied, entry = self._steering(ego, scene, now, held, steer_prop, d, touched)
         entry = intersect_intervals(entry, touched_speeds)
         accel, limits = self._accelerations(ego, scene, occupied, entry, d)
+        if accel and self.reach is not None and not self._in_model(ego):
+            accel = []
+            d.note(f"the acceleration now, {ego.acceleration:g} m/s^2, is outside the actuator's bounds "
+                   f"±{self.config.traffic_accel:g}: outside the model")
         wanted = self._applies(ego, a_prop)   # judged in the accelerations the actuator applies
         unchanged = UNCHANGED if self.actuator is None or not self.actuator.lag else UNCHANGED_LAGGED
         if accel:
@@ -211,6 +221,8 @@ class BicycleGuardian:
             d.level, d.changed = "failsafe", "failsafe"
             d.note("failsafe: no self-safe acceleration; braking as hard as the model allows, down to standstill")
         a = a_prop if chosen == wanted else self._command(ego, chosen)   # under a lag, the command that applies it
+        if not accel and self.reach is not None and not self._in_model(ego):
+            a = -self.config.traffic_accel   # the actuator's state is outside the model: the hardest command
         throttled = abs(chosen - wanted) > unchanged
         d.applied = [a, steer]
         self.authorized |= self.lanes.slot_set(_entered(d))

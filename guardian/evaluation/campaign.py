@@ -34,6 +34,7 @@ The counts are ``guardian.evaluation.tally.HighwayTally``'s (each by a written r
 from __future__ import annotations
 
 import json
+import math
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -135,6 +136,10 @@ def matrix(guardian: bool = True, only: str | None = None, jerk: float | None = 
                              "'roads'")
         import dataclasses
 
+        from itha.actuator import Actuator
+
+        Actuator(jerk=math.inf if jerk is None else float(jerk), lag=0.0 if lag is None else float(lag),
+                 profile="hold")   # refuses what no actuator is, before any cell runs
         return [dataclasses.replace(c, jerk=None if jerk is None else float(jerk), lag=None if lag is None else
                                     float(lag)) for c in matrix(guardian, only)]
     cells = []

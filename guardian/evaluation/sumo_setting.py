@@ -60,6 +60,10 @@ class SumoSetting:
             raise ConfigError(f"jerk must be a positive finite number [m/s^3] (None: no limit), got {self.jerk}")
         if self.lag is not None and not (math.isfinite(self.lag) and self.lag > 0):
             raise ConfigError(f"lag must be a positive finite time constant [s] (None: no lag), got {self.lag}")
+        try:
+            self.actuator
+        except ValueError as exc:   # what the actuator itself refuses (a lag beyond any vehicle's)
+            raise ConfigError(str(exc)) from exc
         if self.start == "ramp" and not (self.net.ramp_at and self.guarded == 1):
             raise ConfigError("start 'ramp' needs a road with an on-ramp (ramp_at) and one guarded vehicle")
 

@@ -376,6 +376,10 @@ class _Bicycle:
             raise ServiceError(422, "ego.acceleration is required: the vehicle declares max_jerk or lag (what its "
                                     "actuator applied over the last step)" if self.actuator is not None else
                                "ego.acceleration applies to a vehicle that declares max_jerk or lag only")
+        bound = self.scene.config.traffic_accel
+        if e.acceleration is not None and not -bound <= e.acceleration <= bound:
+            raise ServiceError(422, f"ego.acceleration {e.acceleration:g} m/s^2 is outside the vehicle's bounds "
+                                    f"±{bound:g} (max_acceleration): the actuator cannot have applied it")
         return EgoState(front, e.y, e.heading, e.speed, lane, target, e.x, e.acceleration or 0.0)
 
     def _scene(self, e: EgoSpec, state: EgoState, cars):

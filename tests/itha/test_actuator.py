@@ -1,5 +1,6 @@
 """An ego that cannot brake at once (``itha.actuator``): its motion against a fine numerical integration, the set
 with no actuator dynamics against the exact closed form, and invariance with a jerk bound and a delay."""
+import dataclasses
 import math
 
 import numpy as np
@@ -214,6 +215,13 @@ def test_a_lag_moves_the_held_acceleration_part_of_the_way():
         a = A.follows(a, 1.0, dt)
     assert a == pytest.approx(1 - math.exp(-1.0 / lag), abs=1e-12)
     assert Actuator(jerk=3.0, lag=0.05, profile="hold").follows(0.0, 5.0, dt) == pytest.approx(3.0 * dt)
+    odd = Actuator(lag=0.010752144495215967, profile="hold")   # found by a helper: the blend rounded below u_min
+    a = 0.0
+    for _ in range(7):
+        a = odd.follows(a, -6.0, dt)
+        assert -6.0 <= a <= 0.0
+    assert RateLimitedSet(dataclasses.replace(HE, u_min=-6.0, u_max=6.0, d_min=-6.0, d_max=6.0), odd).contains(
+        (10.0, 100.0, 20.0, a))
     rng = np.random.default_rng(5)
     for act in ACTUATORS.values():
         for _ in range(500):
@@ -226,6 +234,7 @@ def test_a_lag_moves_the_held_acceleration_part_of_the_way():
                 u = act.asks(last, target, -5.0, 5.0, dt)
                 assert -5.0 <= u <= 5.0 and act.follows(last, u, dt) == pytest.approx(target, abs=1e-12)
                 assert abs(act.lagged(last, u, dt) - act.follows(last, u, dt)) <= 1e-12   # never cut by the jerk
+                assert min(last, u) <= act.lagged(last, u, dt) <= max(last, u)
 
 
 @pytest.mark.parametrize("name", list(ACTUATORS))
@@ -291,5 +300,7 @@ def test_rate_limited_set_refuses_what_it_does_not_model():
         RateLimitedSet(HE, Actuator(jerk=10, delay=1, profile="hold"))
     with pytest.raises(ValueError, match="hold"):
         RateLimitedSet(HE, Actuator(jerk=10))
+    with pytest.raises(ValueError, match="beyond 60 s"):
+        Actuator(lag=61.0, profile="hold")
     with pytest.raises(ValueError, match="would not end"):
-        RateLimitedSet(HE, Actuator(lag=1e12, profile="hold"))
+        RateLimitedSet(dataclasses.replace(HE, dt=1e-9), Actuator(lag=60.0, profile="hold"))

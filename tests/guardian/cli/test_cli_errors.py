@@ -107,6 +107,7 @@ REFUSED = [
     ("rollout --env guardian/Overtake-v0 --lag 0.3", "--lag applies to highway-env's roads"),
     ("rollout --env guardian/Overtake-v0 --jerk 5 --lag 0.3", "--jerk and --lag apply to highway-env's roads"),
     ("rollout --env highway-v0 --lag 0", "--lag"), ("rollout --env highway-v0 --lag nan", "--lag"),
+    ("rollout --env highway-v0 --lag 61", "at most 60 s"), ("falsify --only roads --lag 1e9", "at most 60 s"),
     ("falsify --lag 0.3", "--lag applies to highway-env's roads"),
     ("rollout --env guardian/HighwayOvertake-v0 --agent mpc --env-config intention=aggressive", "--intention"),
     ("rollout --env guardian/Overtake-v0 --env-config disturbance=adversarial", "--disturbance"),

@@ -159,3 +159,22 @@ def test_under_a_lag_the_failsafe_asks_the_hardest_command_and_says_so():
     applied, d = g.step(ego, _scene(ego, 110.0, 0.0), [3.0, 0.0])   # a standing car 5 m ahead
     assert d.level == "failsafe" and applied[0] == -CONFIG.traffic_accel
     assert "actuator" in " ".join(d.reasons)
+
+
+def test_a_proposal_that_is_not_finite_is_refused_by_name():
+    for g in (_guard(), _guard(lag=0.5)):
+        ego = EgoState(100.0, 4.0, 0.0, 20.0, 1, 1, 0.0, 0.0)
+        for bad in ([math.nan, 0.0], [0.0, math.inf], [-math.inf, 0.0]):
+            with pytest.raises(ValueError, match="not finite"):
+                g.step(ego, _scene(ego, 400.0, 20.0), bad)
+
+
+@pytest.mark.parametrize("jerk,lag", [(5.0, 0.0), (None, 0.5), (5.0, 0.5)])
+def test_an_acceleration_now_outside_the_actuators_bounds_is_outside_the_model_and_brakes_hardest(jerk, lag):
+    """Found by a helper: a reading of 10 m/s^2 (beyond U = ±6) under a lag and a jerk bound was answered with full
+    throttle at the fail-safe level (the same applied acceleration as braking under the model, but none to spare)."""
+    g = _guard(jerk, lag)
+    for a_now in (10.0, 1e6, -1e20):
+        ego = EgoState(100.0, 4.0, 0.0, 20.0, 1, 1, 0.0, a_now)
+        applied, d = g.step(ego, _scene(ego, 400.0, 20.0), [0.0, 0.0])
+        assert d.level == "failsafe" and applied[0] == -CONFIG.traffic_accel, (a_now, applied, d.reasons)

@@ -196,7 +196,7 @@ def test_the_command_prints_clean_json_and_refuses_options_that_do_not_apply():
                        (["--connection", "127.0.0.1:1", "--workers", "2"], "drives one SUMO server"),
                        (["--write-scenario", "x", "--campaign"], "--write-scenario writes one setting"),
                        (["--rerun", "x.rrd", "--workers", "2"], "--rerun records in this process"),
-                       (["--jerk", "0"], "--jerk"), (["--lag", "-1"], "--lag")):
+                       (["--jerk", "0"], "--jerk"), (["--lag", "-1"], "--lag"), (["--lag", "1e9"], "at most 60 s")):
         done = subprocess.run(run + extra, capture_output=True, text=True, timeout=300)
         lines = [line for line in done.stderr.splitlines() if "pyarrow" not in line]
         assert done.returncode == 2 and len(lines) == 1 and why in lines[0], done.stderr
@@ -546,6 +546,13 @@ def test_a_jerk_limited_guarded_vehicle_asks_only_for_what_its_actuator_reaches_
     unguarded = summary([run_episode(setting, "random", 0, guarded=False)])
     assert unguarded["actuator_clipped"] > 0
     assert summary([run_episode(MERGE, "random", 0)])["actuator_clipped"] is None
+
+
+def test_a_lag_no_actuator_has_is_refused_by_name():
+    from guardian.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="beyond 60 s"):
+        SumoSetting(lag=100.0)
 
 
 def test_a_lagged_guarded_vehicle_causes_no_collision_and_its_model_covers_it():

@@ -207,6 +207,13 @@ def test_a_vehicle_that_declares_a_lag_gets_the_in_process_command_and_its_cover
             a = guard.actuator.follows(a, record["applied"][0], dt)
             x, v = x + dt * v, v + dt * a
     assert record["overridden"]
+    for vehicle in (lagged, {**BICYCLE, "max_jerk": 5.0}):   # a reading the actuator cannot have applied
+        with client.create_scene_session(ROAD, vehicle) as session:
+            for a_now in (6.5, -1e6):
+                with pytest.raises(ServiceError) as err:
+                    session.step(ego={"x": 0.0, "y": 4.0, "speed": 20.0, "acceleration": a_now}, cars=[],
+                                 input=[0.0, 0.0])
+                assert err.value.status == 422 and "outside the vehicle's bounds" in err.value.message
 
 
 # ---- lanes from bodies, lane changes, coverage ----------------------------------------------------------------
