@@ -382,8 +382,8 @@ class RateLimitedSet:
         self.params, self.actuator = params, actuator
         self.fall, self.keep = actuator.jerk * params.dt, actuator.keep(params.dt)
         if self.keep > 1.0 - 1e-9:
-            raise ValueError(f"a lag of {actuator.lag:g} s at a step of {params.dt:g} s moves the acceleration less than "
-                             "1e-9 of the way a step: the set's braking would not end")
+            raise ValueError(f"a lag of {actuator.lag:g} s at a step of {params.dt:g} s moves the acceleration less "
+                             "than 1e-9 of the way a step: the set's braking would not end")
 
     def reach(self, a: float) -> tuple[float, float]:
         """The accelerations the actuator can apply next from acceleration ``a`` (commands within ``U``)."""

@@ -176,7 +176,8 @@ class BicycleGuardian:
         """
         a_prop, asked = (float(v) for v in proposed)
         if not (math.isfinite(a_prop) and math.isfinite(asked)):
-            raise ValueError(f"the proposal [{a_prop}, {asked}] is not finite: a supervisor acts only on what it checked")
+            raise ValueError(f"the proposal [{a_prop}, {asked}] is not finite: a supervisor acts only on what it "
+                             "checked")
         kin = self.kin
         self._bind(ego)
         d = Decision(proposed=[a_prop, asked], applied=[], changed="none")
@@ -442,7 +443,6 @@ class BicycleGuardian:
                 bound = max((hi for lo, hi in speeds if hi < v_prop), default=None)
                 d.note(f"acceleration limited by {name}" + (f": next speed at most {bound:.2f} m/s" if bound is not None
                                                              else ""))
-
 
     def _actuator_named(self) -> str:
         act = self.actuator
