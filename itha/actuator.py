@@ -230,7 +230,24 @@ def _rest_time(pieces: list[Piece]) -> float:
 
 
 # ---- the set ------------------------------------------------------------------------------------------
-class ActuatedSet:
+class _Queued:
+    """A car-following set whose state carries the acceleration now and the ``delay`` accelerations queued."""
+
+    actuator: Actuator
+
+    @property
+    def state_size(self) -> int:
+        return 4 + self.actuator.delay
+
+    def _check(self, x) -> tuple:
+        x = tuple(float(c) for c in x)
+        if len(x) != self.state_size:
+            raise ValueError(f"the state is (v, h, v_L, a, q_1..q_{self.actuator.delay}): {self.state_size} numbers, "
+                             f"got {len(x)}")
+        return x
+
+
+class ActuatedSet(_Queued):
     """The maximal RCIS of the car-following agent whose ego has ``actuator`` (see the module docstring)."""
 
     kind = "actuated"
@@ -243,17 +260,6 @@ class ActuatedSet:
             raise ValueError("ActuatedSet has no lag: a continuous lag brakes exponentially within a step and the "
                              "least gap has no closed form; a lag is modelled on (7.3)'s Euler step (RateLimitedSet)")
         self.params, self.actuator = params, actuator
-
-    @property
-    def state_size(self) -> int:
-        return 4 + self.actuator.delay
-
-    def _check(self, x) -> tuple:
-        x = tuple(float(c) for c in x)
-        if len(x) != self.state_size:
-            raise ValueError(f"the state is (v, h, v_L, a, q_1..q_{self.actuator.delay}): {self.state_size} numbers, "
-                             f"got {len(x)}")
-        return x
 
     def _step(self, start: float, end: float) -> tuple:
         """One step's segment from acceleration ``start`` to the commanded ``end``."""
@@ -347,7 +353,7 @@ class ActuatedSet:
 
 
 # ---- the same on (7.3)'s Euler step --------------------------------------------------------------------
-class RateLimitedSet:
+class RateLimitedSet(_Queued):
     """The maximal RCIS of (7.3), Euler step and all, for an ego whose acceleration changes by at most
     ``jerk dt`` from one step to the next and, under a lag, only part of the way to the command (and whose speed
     must stay within ``v_max`` while it brakes): the world of a simulator that moves its cars by Euler steps
@@ -366,6 +372,14 @@ class RateLimitedSet:
     command, so the set bound to the ego's speed and acceleration now (``bound``) answers ``(7.4)`` in next
     speeds, as ``MaximalSet.speed_intervals`` does, and the traffic rules take it unchanged. ``jerk = inf`` is
     (7.3) itself (tested against ``MaximalSet``).
+
+    With a reaction delay of ``n`` steps the state is ``(v, h, v_L, a, q_1..q_n)``, the ``q`` the accelerations the
+    delay has fixed (``q_1`` applied over the coming step), and a command's acceleration ``c`` (within
+    ``reach(q_n)``) is applied after them; the floor steps through the queue, then brakes. Bound to the state
+    (``bound(v, a, queue)``) it answers in the speed ``c`` gives when it acts, ``max(v_n + dt c, 0)`` with ``v_n``
+    the speed after the queue (``RateLimitedEgo.reference``). The traffic rules do not take that yet: the
+    constraints other cars' sets put on the ego bind its physical next speed, which the queue fixes (the guardian
+    refuses a delay by name).
     """
 
     kind = "rate-limited"
@@ -374,9 +388,6 @@ class RateLimitedSet:
         if params.exact or params.has_drag:
             raise ValueError("RateLimitedSet is (7.3)'s Euler step without drag; for exact integration use "
                              "ActuatedSet")
-        if actuator.delay:
-            raise ValueError("RateLimitedSet has no reaction delay: a delayed actuator's set is ActuatedSet "
-                             "(exact integration)")
         if actuator.profile != "hold":
             raise ValueError("over an Euler step the acceleration is held: declare Actuator(profile=\"hold\")")
         self.params, self.actuator = params, actuator
@@ -391,61 +402,93 @@ class RateLimitedSet:
         return self.actuator.reach(a, p.u_min, p.u_max, p.dt)
 
     def floor(self, x) -> float:
-        v, h, vL, a = (float(c) for c in x)
+        """The least step-end gap while the ego goes through its queued accelerations and then brakes as hard as its
+        actuator lets it, the lead braking at ``d_min`` from now (``-inf`` where a speed passes ``v_max``)."""
+        v, h, vL, a, *queue = self._check(x)
         p = self.params
-        return _kernels.floor_rate_limited(self.fall, self.keep, p.u_min, p.lead_step, p.dt, p.v_max, v, h, vL, a)
+        least = h
+        for q in queue:   # the queued accelerations, stepped as the kernel steps its own
+            if v > p.v_max:
+                return -INF
+            h += p.dt * (vL - v)
+            least = min(least, h)
+            a, v, vL = q, max(v + p.dt * q, 0.0), max(vL - p.lead_step, 0.0)
+        return min(least, _kernels.floor_rate_limited(self.fall, self.keep, p.u_min, p.lead_step, p.dt, p.v_max, v, h,
+                                                      vL, a))
 
     def contains(self, x) -> bool:
-        v, h, vL, a = (float(c) for c in x)
+        v, h, vL, a, *queue = self._check(x)
         p = self.params
-        if not (0 <= v <= p.v_max and p.u_min <= a <= p.u_max):
+        if not (0 <= v <= p.v_max and all(p.u_min <= q <= p.u_max for q in (a, *queue))):
             return False
         if h == INF:      # no car ahead: only the top speed binds
             vL = 0.0
         elif not 0 <= vL <= p.v_max:
             return False
-        return self.floor((v, h, vL, a)) >= p.h_min - INNER   # rounding allowed (INNER)
+        return self.floor((v, h, vL, a, *queue)) >= p.h_min - INNER   # rounding allowed (INNER)
 
-    def speed_limit(self, h: float, vL: float, a: float) -> float | None:
-        """The highest ego speed ``v`` with ``(v, h, vL, a)`` in the set (it falls with ``v``): the set's slice at
-        ``(vL, a)`` is ``v <= speed_limit(h)``; None where not even standing is inside."""
+    def speed_limit(self, h: float, vL: float, a: float, queue=()) -> float | None:
+        """The highest ego speed ``v`` with ``(v, h, vL, a, *queue)`` in the set (it falls with ``v``): the set's
+        slice at ``(vL, a, queue)`` is ``v <= speed_limit(h)``; None where not even standing is inside."""
         p = self.params
-        if not self.contains((0.0, h, vL, a)):
+        if not self.contains((0.0, h, vL, a, *queue)):
             return None
-        if self.contains((p.v_max, h, vL, a)):
+        if self.contains((p.v_max, h, vL, a, *queue)):
             return p.v_max
         lo, hi = 0.0, p.v_max
         for _ in range(SPEED_BISECTIONS):
             mid = (lo + hi) / 2
-            lo, hi = (mid, hi) if self.contains((mid, h, vL, a)) else (lo, mid)
+            lo, hi = (mid, hi) if self.contains((mid, h, vL, a, *queue)) else (lo, mid)
         return lo
 
-    def bound(self, v: float, a: float) -> "RateLimitedEgo":
-        """The set seen from an ego at speed ``v`` with acceleration ``a`` now."""
-        return RateLimitedEgo(self, float(v), float(a))
+    def bound(self, v: float, a: float, queue=()) -> "RateLimitedEgo":
+        """The set seen from an ego at speed ``v`` with acceleration ``a`` now and ``queue`` the accelerations its
+        delay has already fixed (``q_1`` applied over the coming step)."""
+        return RateLimitedEgo(self, float(v), float(a), tuple(float(q) for q in queue))
 
 
 class RateLimitedEgo:
     """``RateLimitedSet`` bound to the ego's speed and acceleration now: ``speed_intervals(h+, v_L+)`` are the
     next speeds the actuator reaches that keep ``(v+, h+, v_L+, a+)`` in the set (``a+`` the command that gives
     ``v+``; every command that stops the ego is as good as another), as ``MaximalSet.speed_intervals`` gives them
-    for (7.3). With an infinite gap (no car ahead) only the top speed binds."""
+    for (7.3). With an infinite gap (no car ahead) only the top speed binds. With a delay the speeds are those the
+    command gives when it acts, after the queued accelerations (``reference`` is the speed it acts from)."""
 
     kind = "rate-limited"
 
-    def __init__(self, S: RateLimitedSet, v: float, a: float):
-        self.S, self.v, self.a = S, v, a
-        self.params = S.params
-        self.commands = S.reach(a)
+    def __init__(self, S: RateLimitedSet, v: float, a: float, queue: tuple = ()):
+        if len(queue) != S.actuator.delay:
+            raise ValueError(f"the actuator's delay queues {S.actuator.delay} accelerations, got {len(queue)}")
+        self.S, self.v, self.a, self.queue = S, v, a, queue
+        self.params = p = S.params
+        self.commands = S.reach(queue[-1] if queue else a)
+        self.reference = v   # the speed the command acts from: after the queued accelerations
+        for q in queue:
+            self.reference = max(self.reference + p.dt * q, 0.0)
         self._answers = {}   # (h, vL) -> speeds: a decision asks the free road and each leader several times
 
     def next_speed(self, command: float) -> float:
-        return max(self.v + self.params.dt * command, 0.0)
+        """The speed ``command`` gives when it acts (next step without a delay; after the queue with one)."""
+        return max(self.reference + self.params.dt * command, 0.0)
 
     def _safe(self, command: float, h: float, vL: float) -> bool:
+        p, queue = self.params, self.queue
+        if not queue:
+            return _kernels.floor_rate_limited(self.S.fall, self.S.keep, p.u_min, p.lead_step, p.dt, p.v_max,
+                                               self.next_speed(command), h, vL, command) >= p.h_min + INNER
+        v1 = max(self.v + p.dt * queue[0], 0.0)
+        return self.S.floor((v1, h, vL, queue[0], *queue[1:], command)) >= p.h_min + INNER
+
+    def _highest_safe(self, lo: float, hi: float, h: float, vL: float) -> float:
+        """The last safe command of ``[lo, hi]`` (``lo`` safe, ``hi`` not): the floor falls with the command."""
         p = self.params
-        return _kernels.floor_rate_limited(self.S.fall, self.S.keep, p.u_min, p.lead_step, p.dt, p.v_max,
-                                           self.next_speed(command), h, vL, command) >= p.h_min + INNER
+        if not self.queue:
+            return _kernels.highest_safe_command(self.S.fall, self.S.keep, p.u_min, p.lead_step, p.dt, p.v_max, self.v,
+                                                 h, vL, lo, hi, p.h_min + INNER, SPEED_BISECTIONS)
+        for _ in range(SPEED_BISECTIONS):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if self._safe(mid, h, vL) else (lo, mid)
+        return lo
 
     def speed_intervals(self, h: float, vL: float) -> list[tuple[float, float]]:
         key = (h, vL)
@@ -466,7 +509,6 @@ class RateLimitedEgo:
         if not self._safe(lo, h, vL):
             return []
         if not self._safe(hi, h, vL):
-            top = _kernels.highest_safe_command(self.S.fall, self.S.keep, p.u_min, p.lead_step, p.dt, p.v_max, self.v,
-                                                h, vL, lo, hi, p.h_min + INNER, SPEED_BISECTIONS)
+            top = self._highest_safe(lo, hi, h, vL)
         low, high = self.next_speed(lo), min(self.next_speed(top), p.v_max)
         return [(low, high)] if low <= high else []

@@ -70,6 +70,10 @@ class BicycleGuardian:
                                 u_max=c.traffic_accel, d_min=-c.traffic_accel, d_max=c.traffic_accel)
         self.plain = TrafficSupervisor(cf, None, c.overapprox, c.wreck_margin)
         self.traffic = self.plain   # bound to the ego's state at each decision when an actuator is declared
+        if actuator is not None and actuator.delay:
+            raise ValueError("BicycleGuardian: an actuator with a reaction delay is not supervised yet: the traffic "
+                             "rules judge the ego's next speed, which a delay has already fixed (entries and their "
+                             "followers would have to be judged over the queued steps)")
         self.actuator = actuator
         self.ego_set = None if actuator is None else RateLimitedSet(cf, actuator)
         self.reach = None           # the accelerations the actuator reaches now (None: ±traffic_accel)

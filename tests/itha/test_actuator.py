@@ -296,11 +296,135 @@ def test_outside_the_rate_limited_set_the_hardest_braking_lead_wins(name):
 def test_rate_limited_set_refuses_what_it_does_not_model():
     with pytest.raises(ValueError, match="exact"):
         RateLimitedSet(CarFollowingParams(integration="exact"), Actuator(jerk=10, profile="hold"))
-    with pytest.raises(ValueError, match="delay"):
-        RateLimitedSet(HE, Actuator(jerk=10, delay=1, profile="hold"))
+    with pytest.raises(ValueError, match="v_L, a, q_1..q_1"):
+        RateLimitedSet(HE, Actuator(jerk=10, delay=1, profile="hold")).contains((10, 20, 10, 0))
+    with pytest.raises(ValueError, match="queues 1"):
+        RateLimitedSet(HE, Actuator(jerk=10, delay=1, profile="hold")).bound(10, 0)
     with pytest.raises(ValueError, match="hold"):
         RateLimitedSet(HE, Actuator(jerk=10))
     with pytest.raises(ValueError, match="beyond 60 s"):
         Actuator(lag=61.0, profile="hold")
     with pytest.raises(ValueError, match="would not end"):
         RateLimitedSet(dataclasses.replace(HE, dt=1e-9), Actuator(lag=60.0, profile="hold"))
+
+
+# ---- a reaction delay on (7.3)'s Euler step --------------------------------------------------------------------
+DELAYED = {"jerk 10, delay 1": Actuator(jerk=10.0, delay=1, profile="hold"),
+           "lag 0.3 s, delay 3": Actuator(lag=0.3, delay=3, profile="hold"),
+           "jerk 5, lag 0.2 s, delay 2": Actuator(jerk=5.0, lag=0.2, delay=2, profile="hold")}
+
+
+def delayed_step(x, applied, lead_accel, p=HE):
+    """The world with a delay: the front of the queue is applied, ``applied`` joins its back."""
+    v, h, vL, _, *queue = x
+    now, queue = (queue + [applied])[0], (queue + [applied])[1:]
+    return (max(v + p.dt * now, 0.0), h + p.dt * (vL - v), min(max(vL + p.dt * lead_accel, 0.0), p.v_max), now, *queue)
+
+
+def random_queued_state(act: Actuator, rng, p=HE):
+    """A state whose queue the actuator could have made (each acceleration within reach of the one before)."""
+    a = rng.uniform(p.u_min, p.u_max)
+    queue, last = [], a
+    for _ in range(act.delay):
+        last = act.follows(last, rng.uniform(p.u_min, p.u_max), p.dt)
+        queue.append(last)
+    return (rng.uniform(0, p.v_max), rng.uniform(p.h_min, 120.0), rng.uniform(0, p.v_max), a, *queue)
+
+
+def test_without_a_delay_the_queue_is_empty_and_the_set_is_the_same():
+    rng = np.random.default_rng(7)
+    for act in ACTUATORS.values():
+        S = RateLimitedSet(HE, act)
+        for _ in range(300):
+            x = random_state(rng)
+            assert S.bound(x[0], x[3]).reference == x[0] and S.bound(x[0], x[3], ()).queue == ()
+
+
+@pytest.mark.parametrize("name", list(DELAYED))
+def test_the_delayed_set_is_invariant_under_its_admissible_commands(name):
+    """A falsifier: from states inside, any acceleration the bound set admits for the back of the queue (asked as a
+    command, applied as the world applies it), whatever the lead does within D, keeps the state inside and the gap
+    above h_min for 60 steps."""
+    act = DELAYED[name]
+    S = RateLimitedSet(HE, act)
+    rng = np.random.default_rng(8)
+    runs = 0
+    while runs < 120:
+        x = random_queued_state(act, rng)
+        if not S.contains(x):
+            continue
+        runs += 1
+        for _ in range(60):
+            v, h, vL, a, *queue = x
+            bound = S.bound(v, a, queue)
+            speeds = bound.speed_intervals(h + HE.dt * (vL - v), max(vL + HE.dt * HE.d_min, 0.0))
+            assert speeds, f"no admissible command from {x}, a state inside"
+            lo, hi = bound.commands
+            top = speeds[0][1]
+            c_hi = min(hi, (top - bound.reference) / HE.dt - 1e-9) if top > 0 else lo
+            target = rng.choice([lo, c_hi, rng.uniform(lo, max(lo, c_hi))])
+            u = act.asks(queue[-1], target, HE.u_min, HE.u_max, HE.dt)
+            x = delayed_step(x, act.follows(queue[-1], u, HE.dt),
+                             rng.choice([HE.d_min, HE.d_max, rng.uniform(HE.d_min, HE.d_max)]))
+            assert x[1] >= HE.h_min - 1e-9 and S.contains(x), f"left the set at {x}"
+
+
+@pytest.mark.parametrize("name", list(DELAYED))
+def test_outside_the_delayed_set_the_hardest_braking_loses_h_min_or_passes_the_top_speed(name):
+    """Maximality: from a state outside, the queue and then the hardest braking either lose h_min behind the lead
+    braking at d_min or take the speed past v_max (the set keeps the speed within the model's range)."""
+    act = DELAYED[name]
+    S = RateLimitedSet(HE, act)
+    rng = np.random.default_rng(9)
+    seen = 0
+    while seen < 60:
+        x = random_queued_state(act, rng)
+        if S.contains(x) or x[1] < HE.h_min:
+            continue
+        seen += 1
+        y, lost = x, False
+        for _ in range(3000):
+            y = delayed_step(y, act.follows(y[-1], HE.u_min, HE.dt), HE.d_min)
+            lost = y[1] < HE.h_min or y[0] > HE.v_max
+            if lost:
+                break
+        assert lost, f"{x} is outside, yet the hardest braking kept h >= h_min and v <= v_max"
+
+
+def test_a_guardian_that_ignores_the_delay_loses_h_min():
+    """The ego asks full throttle; a guardian bound to the actuator without its delay (the queue ignored) picks the
+    command as if it acted at once; the world applies it three steps late: the lead braking at d_min wins. The
+    delayed set's own choice keeps h_min from the same starts."""
+    act = DELAYED["lag 0.3 s, delay 3"]
+    S, blind = RateLimitedSet(HE, act), RateLimitedSet(HE, dataclasses.replace(act, delay=0))
+    rng = np.random.default_rng(10)
+    least = {"delayed": math.inf, "blind": math.inf}
+    for _ in range(40):
+        x0 = (rng.uniform(15, 28), rng.uniform(30, 60), rng.uniform(15, 28), 0.0, 0.0, 0.0, 0.0)
+        if not S.contains(x0):
+            continue
+        brake_at = rng.integers(0, 60)
+        for who in least:
+            x = x0
+            for t in range(200):
+                v, h, vL, a, *queue = x
+                h_next, vL_next = h + HE.dt * (vL - v), max(vL + HE.dt * HE.d_min, 0.0)
+                bound = S.bound(v, a, queue) if who == "delayed" else blind.bound(v, queue[-1])
+                speeds = bound.speed_intervals(h_next, vL_next)
+                lo, hi = bound.commands
+                target = lo if not speeds else min(hi, (speeds[0][1] - bound.reference) / HE.dt - 1e-9)
+                u = act.asks(queue[-1], max(target, lo), HE.u_min, HE.u_max, HE.dt)
+                x = delayed_step(x, act.follows(queue[-1], u, HE.dt),
+                                 HE.d_min if t >= brake_at else rng.uniform(-1, 1))
+                least[who] = min(least[who], x[1])
+    assert least["delayed"] >= HE.h_min - 1e-9 and least["blind"] < HE.h_min - 0.1, least
+
+
+def test_the_guardian_refuses_a_delay_by_name():
+    from guardian.config import GuardianConfig
+    from guardian.decide.bicycle import BicycleGuardian
+    from guardian.decide.kinematics import BicycleEgo
+
+    kin = BicycleEgo(HE.dt, 6.0, 5.0, 2.0, 4.0, 3, math.pi / 4)
+    with pytest.raises(ValueError, match="reaction delay is not supervised yet"):
+        BicycleGuardian(kin, GuardianConfig(), False, Actuator(jerk=5.0, delay=1, profile="hold"))
