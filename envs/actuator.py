@@ -11,7 +11,7 @@ before (starting from 0 at the reset); its speed stops at 0 (it never reverses).
 reads both and asks only for what the actuator reaches. A crashed car is braked by highway-env itself
 (``Vehicle.clip_actions``), not through the actuator. Every other simulation step whose command the jerk bound
 cut (the lag's response to it, or the command itself without a lag, beyond ``jerk dt`` of the last acceleration;
-under a lag, beyond rounding: ``Actuator.cuts``) is counted (``info["actuator"]["clipped_steps"]`` per policy step): a
+under a lag, beyond rounding: ``Actuator.response``) is counted (``info["actuator"]["clipped_steps"]`` per policy step): a
 guarded car's count is 0 by construction, and a nonzero one is a defect of the guardian. A lag is not a clip: the
 command is followed the way the lag follows it.
 
@@ -42,8 +42,8 @@ class _LimitedStep:
             v.applied_acceleration = float(v.action["acceleration"])
             return
         asked, last, actuator = float(v.action["acceleration"]), v.applied_acceleration, self.world.actuator
-        applied = actuator.follows(last, asked, dt)
-        if actuator.cuts(last, asked, dt):
+        applied, cut = actuator.response(last, asked, dt)
+        if cut:
             self.world.clipped += 1
         v.action["acceleration"] = applied
         moving = v.speed >= 0.0

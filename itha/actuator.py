@@ -49,7 +49,7 @@ from itha.car_following import INNER, SPEED_BISECTIONS, CarFollowingParams
 BISECTIONS = 60
 INF = math.inf
 PROFILES = ("ramp", "hold")
-CUT_ROUNDING = 1e-9   # [m/s^2] see Actuator.cuts
+CUT_ROUNDING = 1e-9   # [m/s^2] see Actuator.response
 LAG_MAX = 60.0        # [s] a longer time constant is no vehicle's actuator (and its set's braking barely ends)
 
 
@@ -96,15 +96,16 @@ class Actuator:
         """The acceleration a held-profile actuator applies over a step of ``dt`` when asked for ``asked`` after
         applying ``last``: the lag's response (``asked`` itself without a lag) limited to within ``jerk dt`` of
         ``last`` (the worlds' rule: highway-env's ``envs.actuator.Actuated``, the SUMO episodes' model)."""
-        fall = self.jerk * dt
-        return min(max(self.lagged(last, asked, dt), last - fall), last + fall)
+        return self.response(last, asked, dt)[0]
 
-    def cuts(self, last: float, asked: float, dt: float) -> bool:
-        """Did the jerk bound cut the command (the lag's response to it, with a lag)? Under a lag a cut within
-        ``CUT_ROUNDING`` is the inverted lag's rounding (``asks``), not a cut: the worlds count the rest."""
+    def response(self, last: float, asked: float, dt: float) -> tuple[float, bool]:
+        """``(follows(last, asked, dt), cut)``: ``cut`` says whether the jerk bound cut the command (the lag's
+        response to it, with a lag). Under a lag a cut within ``CUT_ROUNDING`` is the inverted lag's rounding
+        (``asks``), not a cut: the worlds count the rest."""
+        fall = self.jerk * dt
         lagged = self.lagged(last, asked, dt)
-        applied = self.follows(last, asked, dt)
-        return applied != lagged and (not self.lag or abs(applied - lagged) > CUT_ROUNDING)
+        applied = min(max(lagged, last - fall), last + fall)
+        return applied, applied != lagged and (not self.lag or abs(applied - lagged) > CUT_ROUNDING)
 
     def reach(self, last: float, u_min: float, u_max: float, dt: float) -> tuple[float, float]:
         """The accelerations the actuator can apply over the next step, commands within ``[u_min, u_max]``."""

@@ -96,14 +96,12 @@ class BicycleGuardian:
         """The acceleration the ego's actuator applies over the next step for ``command`` (itself without a lag;
         beyond the reach a proposal stays beyond it: the clip is the model's, and said)."""
         act = self.actuator
-        return command if act is None or not act.lag else act.lagged(ego.acceleration, command, self.kin.dt)
+        return command if act is None else act.lagged(ego.acceleration, command, self.kin.dt)
 
     def _command(self, ego: EgoState, applied: float) -> float:
         """The command that makes the actuator apply ``applied`` (an acceleration of its reach)."""
-        act = self.actuator
-        if act is None or not act.lag:
-            return applied
-        return act.asks(ego.acceleration, applied, -self.config.traffic_accel, self.config.traffic_accel, self.kin.dt)
+        act, bound = self.actuator, self.config.traffic_accel
+        return applied if act is None else act.asks(ego.acceleration, applied, -bound, bound, self.kin.dt)
 
     def _in_model(self, ego: EgoState) -> bool:
         """Is the ego's acceleration now one its actuator can apply (within U)?"""

@@ -41,7 +41,7 @@ the car-following sets share). **Counted** (the rules, in docs/sumo.md, tested o
 - ``actuator_clipped``: with an actuator (``SumoSetting.jerk``, ``SumoSetting.lag``: the model applies an
   acceleration held over the step, moved part of the way to the command under a lag and changed by at most ``jerk *
   dt`` from the last, the speed stopping at 0, and the guardian decides on ``itha.actuator.RateLimitedSet``),
-  vehicle-steps whose command the jerk bound cut (``Actuator.cuts``; 0 by construction with the guardian; the
+  vehicle-steps whose command the jerk bound cut (``Actuator.response``; 0 by construction with the guardian; the
   unguarded drivers' clips are counted too). None without an actuator.
 - ``lane_changes``: steps at which a guarded vehicle's centre moved to another lane; ``distance_m``: the guarded
   vehicles' distance along the road, summed.
@@ -294,8 +294,9 @@ class _Episode:
             self.recorder.decision(car.name, proposed, applied, d if self.guarded else None)
         a = float(applied[0])
         if self.actuator is not None:   # the lag's response, within jerk * dt of the last; the speed stops at 0
-            out["actuator_clipped"] += self.actuator.cuts(car.accel, a, setting.step_length)
-            a = car.accel = self.actuator.follows(car.accel, a, setting.step_length)
+            a, cut = self.actuator.response(car.accel, a, setting.step_length)
+            out["actuator_clipped"] += cut
+            car.accel = a
         car.expected = self.model.step(me.x, me.y, me.heading, me.speed, a, float(applied[1]))
         if self.actuator is not None and car.expected[3] < 0.0 <= me.speed:
             car.expected = (*car.expected[:3], 0.0)
